@@ -226,11 +226,11 @@ fn chain_from_robot(
                 format!("velocity limit must be positive and finite, got {}", limits.velocity),
             ));
         }
-        if !(limits.acceleration > 0.0) {
+        if !(limits.acceleration > 0.0 && limits.acceleration.is_finite()) {
             return Err(ModelError::invalid(
                 path,
                 element("<limit acceleration>"),
-                "acceleration limit must be positive (URDF 1.2 `acceleration` attribute)",
+                "acceleration limit must be positive and finite (URDF 1.2 `acceleration` attribute)",
             ));
         }
         joints.push(ChainJoint {
@@ -357,12 +357,6 @@ mod tests {
 
     #[test]
     fn missing_joint_names_the_disconnected_link() {
-        let text = TWO_LINK.replace("<child link=\"a\"/>", "<child link=\"tool\"/>").replace(
-            "<parent link=\"a\"/><child link=\"tool\"/>",
-            "<parent link=\"base\"/><child link=\"a\"/>",
-        );
-        let err = Chain::from_urdf_str(Path::new("t.urdf"), &text, "base", "tool").unwrap_err();
-        assert!(err.to_string().contains("t.urdf"), "{err}");
         let text = TWO_LINK.replace(
             r#"<joint name="tcp" type="fixed">
     <origin xyz="1 0 0"/><parent link="a"/><child link="tool"/>
