@@ -35,6 +35,10 @@ pub struct RobotConfig {
     pub ready_pose: Vec<f64>,
     /// Base footprint length and width, m.
     pub footprint: [f64; 2],
+    /// Manipulation range, m: the horizontal distance from the arm base within which a top-down
+    /// grasp at table height reaches manipulability above the threshold (0.08 for Frankie).
+    /// Derived from the model; see the kinematics tests that check it.
+    pub manipulation_range: f64,
 }
 
 /// A mobile manipulator model: its configuration and its kinematic chain.
