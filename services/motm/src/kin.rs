@@ -48,9 +48,16 @@ impl std::str::FromStr for NumberList {
 pub fn run(config_dir: &Path, args: &KinArgs) -> Result<(), String> {
     let robot = Robot::load(config_dir, &args.robot).map_err(|e| e.to_string())?;
     let [x, y, yaw] = args.base.0[..] else {
-        return Err(format!("--base: expected X,Y,YAW, got {} values", args.base.0.len()));
+        return Err(format!(
+            "--base: expected X,Y,YAW, got {} values",
+            args.base.0.len()
+        ));
     };
-    let q = args.q.clone().map(|l| l.0).unwrap_or_else(|| robot.config.ready_pose.clone());
+    let q = args
+        .q
+        .clone()
+        .map(|l| l.0)
+        .unwrap_or_else(|| robot.config.ready_pose.clone());
     if q.len() != robot.arm_dof() {
         return Err(format!(
             "--q: {} has {} arm joints, got {} values",
@@ -64,7 +71,9 @@ pub fn run(config_dir: &Path, args: &KinArgs) -> Result<(), String> {
     let p = fk.tool_pose.translation.vector;
     let r = fk.tool_pose.rotation.to_rotation_matrix();
     let rows = |rows: usize, cols: usize, at: &dyn Fn(usize, usize) -> f64| -> Vec<Vec<f64>> {
-        (0..rows).map(|i| (0..cols).map(|j| at(i, j)).collect()).collect()
+        (0..rows)
+            .map(|i| (0..cols).map(|j| at(i, j)).collect())
+            .collect()
     };
     let rotation = rows(3, 3, &|i, j| r[(i, j)]);
     let jacobian = rows(6, fk.jacobian.ncols(), &|i, j| fk.jacobian[(i, j)]);
@@ -83,14 +92,20 @@ pub fn run(config_dir: &Path, args: &KinArgs) -> Result<(), String> {
     println!("robot          {}", robot.name());
     println!("base pose      x={x:.4} m  y={y:.4} m  yaw={yaw:.4} rad");
     println!("arm q          {q:?}");
-    println!("tool position  [{:.4}, {:.4}, {:.4}] m (world)", p.x, p.y, p.z);
+    println!(
+        "tool position  [{:.4}, {:.4}, {:.4}] m (world)",
+        p.x, p.y, p.z
+    );
     println!("tool rotation");
     for row in &rotation {
         println!("  [{:8.4} {:8.4} {:8.4}]", row[0], row[1], row[2]);
     }
     println!("manipulability {m:.5} (arm only, Yoshikawa)");
     println!("jacobian (world frame; rows vx vy vz wx wy wz)");
-    println!("  {}", names.iter().map(|n| format!("{n:>14}")).collect::<String>());
+    println!(
+        "  {}",
+        names.iter().map(|n| format!("{n:>14}")).collect::<String>()
+    );
     for (row, label) in jacobian.iter().zip(["vx", "vy", "vz", "wx", "wy", "wz"]) {
         let cells: String = row.iter().map(|v| format!("{v:>14.5}")).collect();
         println!("{label}{cells}");

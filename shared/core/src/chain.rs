@@ -95,7 +95,11 @@ impl Chain {
     }
 
     /// Loads the chain from `root_link` to `tool_link` out of the URDF file at `path`.
-    pub fn from_urdf_file(path: &Path, root_link: &str, tool_link: &str) -> Result<Self, ModelError> {
+    pub fn from_urdf_file(
+        path: &Path,
+        root_link: &str,
+        tool_link: &str,
+    ) -> Result<Self, ModelError> {
         let text = ModelError::read_to_string(path)?;
         Self::from_urdf_str(path, &text, root_link, tool_link)
     }
@@ -155,7 +159,10 @@ fn chain_from_robot(
 
     let mut parent_joint: HashMap<&str, &urdf_rs::Joint> = HashMap::new();
     for joint in &robot.joints {
-        if parent_joint.insert(joint.child.link.as_str(), joint).is_some() {
+        if parent_joint
+            .insert(joint.child.link.as_str(), joint)
+            .is_some()
+        {
             return Err(ModelError::invalid(
                 path,
                 format!("joint '{}'", joint.name),
@@ -178,7 +185,11 @@ fn chain_from_robot(
         path_joints.push(*joint);
         link = joint.parent.link.as_str();
         if path_joints.len() > robot.joints.len() {
-            return Err(ModelError::invalid(path, "<joint>", "the joints form a cycle"));
+            return Err(ModelError::invalid(
+                path,
+                "<joint>",
+                "the joints form a cycle",
+            ));
         }
     }
     path_joints.reverse();
@@ -204,8 +215,9 @@ fn chain_from_robot(
             }
         };
         let axis = Vector3::from(joint.axis.xyz.0);
-        let axis = Unit::try_new(axis, 1e-9)
-            .ok_or_else(|| ModelError::invalid(path, element("<axis xyz>"), "axis has zero length"))?;
+        let axis = Unit::try_new(axis, 1e-9).ok_or_else(|| {
+            ModelError::invalid(path, element("<axis xyz>"), "axis has zero length")
+        })?;
         let limit = &joint.limit;
         let (position_min, position_max) = if joint.joint_type == urdf_rs::JointType::Continuous {
             (f64::NEG_INFINITY, f64::INFINITY)
@@ -223,7 +235,10 @@ fn chain_from_robot(
             return Err(ModelError::invalid(
                 path,
                 element("<limit velocity>"),
-                format!("velocity limit must be positive and finite, got {}", limits.velocity),
+                format!(
+                    "velocity limit must be positive and finite, got {}",
+                    limits.velocity
+                ),
             ));
         }
         if !(limits.acceleration > 0.0 && limits.acceleration.is_finite()) {
@@ -259,9 +274,31 @@ fn chain_from_robot(
 
 /// Attributes whose values are whitespace-separated numbers in URDF.
 const NUMERIC_ATTRIBUTES: &[&str] = &[
-    "xyz", "rpy", "lower", "upper", "effort", "velocity", "acceleration", "deceleration", "jerk",
-    "value", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "radius", "length", "size", "rgba", "scale",
-    "multiplier", "offset", "damping", "friction",
+    "xyz",
+    "rpy",
+    "lower",
+    "upper",
+    "effort",
+    "velocity",
+    "acceleration",
+    "deceleration",
+    "jerk",
+    "value",
+    "ixx",
+    "ixy",
+    "ixz",
+    "iyy",
+    "iyz",
+    "izz",
+    "radius",
+    "length",
+    "size",
+    "rgba",
+    "scale",
+    "multiplier",
+    "offset",
+    "damping",
+    "friction",
 ];
 
 /// Scans URDF text for a numeric attribute that does not parse, returning the element and message.
@@ -281,7 +318,11 @@ fn find_bad_number(text: &str) -> Option<(String, String)> {
         if tag.starts_with('/') || tag.starts_with('?') || tag.starts_with('!') {
             continue;
         }
-        let element = tag.split_whitespace().next().unwrap_or("").trim_end_matches('/');
+        let element = tag
+            .split_whitespace()
+            .next()
+            .unwrap_or("")
+            .trim_end_matches('/');
         let attributes = parse_attributes(tag);
         if element == "joint" || element == "link" {
             if let Some((_, name)) = attributes.iter().find(|(k, _)| *k == "name") {
@@ -351,7 +392,10 @@ mod tests {
         let text = TWO_LINK.replace("upper=\"1\"", "upper=\"1.x\"");
         let err = Chain::from_urdf_str(Path::new("t.urdf"), &text, "base", "tool").unwrap_err();
         let msg = err.to_string();
-        assert!(msg.starts_with("t.urdf: line 5, joint 'j1' <limit upper>"), "{msg}");
+        assert!(
+            msg.starts_with("t.urdf: line 5, joint 'j1' <limit upper>"),
+            "{msg}"
+        );
         assert!(msg.contains("'1.x' is not a number"), "{msg}");
     }
 
@@ -365,7 +409,10 @@ mod tests {
         );
         let err = Chain::from_urdf_str(Path::new("t.urdf"), &text, "base", "tool").unwrap_err();
         let msg = err.to_string();
-        assert!(msg.contains("t.urdf: <link name=\"tool\">: missing joint"), "{msg}");
+        assert!(
+            msg.contains("t.urdf: <link name=\"tool\">: missing joint"),
+            "{msg}"
+        );
     }
 
     #[test]
@@ -374,7 +421,10 @@ mod tests {
         let msg = Chain::from_urdf_str(Path::new("t.urdf"), &text, "base", "tool")
             .unwrap_err()
             .to_string();
-        assert!(msg.contains("joint 'j1' <parent>: link 'nowhere' is not defined"), "{msg}");
+        assert!(
+            msg.contains("joint 'j1' <parent>: link 'nowhere' is not defined"),
+            "{msg}"
+        );
         let text = TWO_LINK.replace(" acceleration=\"3\"", "");
         let msg = Chain::from_urdf_str(Path::new("t.urdf"), &text, "base", "tool")
             .unwrap_err()

@@ -58,7 +58,10 @@ impl ModelError {
     }
 
     /// Parses TOML text that came from `file`, naming the file and key on failure.
-    pub fn parse_toml_str<T: serde::de::DeserializeOwned>(file: &Path, text: &str) -> Result<T, Self> {
+    pub fn parse_toml_str<T: serde::de::DeserializeOwned>(
+        file: &Path,
+        text: &str,
+    ) -> Result<T, Self> {
         toml::from_str(text).map_err(|e| {
             let line = e
                 .span()

@@ -62,7 +62,9 @@ impl Chain {
         for (i, (joint, &qi)) in self.joints.iter().zip(q).enumerate() {
             frame *= joint.origin;
             let axis = frame.rotation * joint.axis.into_inner();
-            jacobian.fixed_view_mut::<3, 1>(0, i).copy_from(&frame.translation.vector);
+            jacobian
+                .fixed_view_mut::<3, 1>(0, i)
+                .copy_from(&frame.translation.vector);
             jacobian.fixed_view_mut::<3, 1>(3, i).copy_from(&axis);
             frame *= joint.motion(qi);
         }

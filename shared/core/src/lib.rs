@@ -5,6 +5,7 @@
 //!
 //! - [`chain`]: serial chains loaded from URDF.
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
+//! - [`mission`]: which target is current, which is next, which phase is active.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
 //! - [`error`]: errors that name the file and element at fault.
@@ -12,11 +13,16 @@
 pub mod chain;
 pub mod error;
 pub mod kinematics;
+pub mod mission;
 pub mod robot;
 pub mod types;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use error::ModelError;
-pub use kinematics::{BasePose, ForwardKinematics, hessian, manipulability, manipulability_gradient};
+pub use kinematics::{
+    BasePose, ForwardKinematics, hessian, manipulability, manipulability_gradient,
+};
 pub use robot::{BASE_JOINTS, ROBOT_NAMES, Robot, RobotConfig};
-pub use types::{BaseVelocity, GripperCommand, RobotState, TargetEstimate, TaskProgress, Twist, wrap_angle};
+pub use types::{
+    BaseVelocity, GripperCommand, RobotState, TargetEstimate, TaskProgress, Twist, wrap_angle,
+};

@@ -166,7 +166,9 @@ impl Robot {
 
     /// The arm-only columns of a full Jacobian.
     pub fn arm_jacobian(jacobian: &Matrix6xX<f64>) -> Matrix6xX<f64> {
-        jacobian.columns(BASE_JOINTS, jacobian.ncols() - BASE_JOINTS).into_owned()
+        jacobian
+            .columns(BASE_JOINTS, jacobian.ncols() - BASE_JOINTS)
+            .into_owned()
     }
 
     /// Yoshikawa manipulability of the arm at `arm_q`.

@@ -1,0 +1,239 @@
+//! Mission sequencing: which target is current, which is next, and which phase is active.
+//!
+//! A mission is an ordered list of tasks (pick this cube, drop it there, press that button). The
+//! base controller always drives past the current target toward the next one; arm control belongs
+//! to the reacher until the tool is within `final_phase_distance` of the target, then to the
+//! final-phase task controller until it reports [`TaskProgress::Done`]. Sequencing lives here, not
+//! inside a controller, so the in-process runner and the supervisor share one implementation.
+
+use nalgebra::Vector3;
+use serde::Deserialize;
+
+use crate::types::TaskProgress;
+
+/// What a task does at its target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TaskKind {
+    /// Grasp the object at the target and lift it.
+    Pick,
+    /// Drop the held object into the container at the target.
+    Place,
+    /// Press the button at the target.
+    PressButton,
+}
+
+/// One step of a mission.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionTask {
+    /// What to do.
+    pub kind: TaskKind,
+    /// Index of the object (for picks and places) or button the task refers to.
+    pub item: usize,
+    /// World position of the target as known when the mission was made; perception may refine it.
+    pub position: Vector3<f64>,
+}
+
+/// Which controller owns the arm.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Phase {
+    /// The reacher brings the tool toward the target while the base drives.
+    #[default]
+    Reach,
+    /// The final-phase task controller performs the task.
+    Final,
+    /// Every task is done.
+    Complete,
+}
+
+/// Tunables of the mission sequencer.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MissionConfig {
+    /// Tool-to-target distance below which the final-phase controller takes over, m
+    /// (d_T = 0.1 m in the paper).
+    pub final_phase_distance: f64,
+    /// How far past the last target the base keeps driving, m: the "next target" of the last
+    /// task, along the direction from the second-to-last target (or the start) to the last one.
+    pub run_out_distance: f64,
+}
+
+impl Default for MissionConfig {
+    fn default() -> Self {
+        Self {
+            final_phase_distance: 0.1,
+            run_out_distance: 2.0,
+        }
+    }
+}
+
+/// The mission state machine.
+#[derive(Debug, Clone)]
+pub struct Mission {
+    config: MissionConfig,
+    tasks: Vec<MissionTask>,
+    start: Vector3<f64>,
+    current: usize,
+    phase: Phase,
+}
+
+/// What the sequencer reports after a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionStatus {
+    /// Index of the current task (equal to the task count when complete).
+    pub task_index: usize,
+    /// The active phase.
+    pub phase: Phase,
+    /// True on the step where the phase or task changed.
+    pub changed: bool,
+}
+
+impl Mission {
+    /// A mission over `tasks`, starting with the base at `start` (world position).
+    pub fn new(config: MissionConfig, tasks: Vec<MissionTask>, start: Vector3<f64>) -> Self {
+        let phase = if tasks.is_empty() {
+            Phase::Complete
+        } else {
+            Phase::Reach
+        };
+        Self {
+            config,
+            tasks,
+            start,
+            current: 0,
+            phase,
+        }
+    }
+
+    /// The tasks, in order.
+    pub fn tasks(&self) -> &[MissionTask] {
+        &self.tasks
+    }
+
+    /// The active phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Index of the current task.
+    pub fn task_index(&self) -> usize {
+        self.current
+    }
+
+    /// The current task, if any is left.
+    pub fn current_task(&self) -> Option<&MissionTask> {
+        self.tasks.get(self.current)
+    }
+
+    /// The task after the current one, if any.
+    pub fn next_task(&self) -> Option<&MissionTask> {
+        self.tasks.get(self.current + 1)
+    }
+
+    /// Where the base should head after the current target: the next task's target, or a point
+    /// `run_out_distance` beyond the last target.
+    pub fn next_waypoint(&self, current_target: &Vector3<f64>) -> Vector3<f64> {
+        if let Some(next) = self.next_task() {
+            return next.position;
+        }
+        let from = if self.current > 0 {
+            self.tasks[self.current - 1].position
+        } else {
+            self.start
+        };
+        let mut direction = current_target - from;
+        direction.z = 0.0;
+        let direction = direction.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+        current_target + direction * self.config.run_out_distance
+    }
+
+    /// Restores a mission at a given task and phase (e.g. after a process restart).
+    pub fn resume(&mut self, task_index: usize, phase: Phase) {
+        self.current = task_index.min(self.tasks.len());
+        self.phase = if self.current == self.tasks.len() {
+            Phase::Complete
+        } else {
+            phase
+        };
+    }
+
+    /// Advances the sequencer given the tool-to-target distance and the final-phase progress.
+    pub fn step(&mut self, tool_to_target: f64, final_progress: TaskProgress) -> MissionStatus {
+        let before = (self.current, self.phase);
+        match self.phase {
+            Phase::Reach if tool_to_target < self.config.final_phase_distance => {
+                self.phase = Phase::Final;
+            }
+            Phase::Final if final_progress == TaskProgress::Done => {
+                self.current += 1;
+                self.phase = if self.current >= self.tasks.len() {
+                    Phase::Complete
+                } else {
+                    Phase::Reach
+                };
+            }
+            _ => {}
+        }
+        MissionStatus {
+            task_index: self.current,
+            phase: self.phase,
+            changed: before != (self.current, self.phase),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pick_and_place() -> Mission {
+        Mission::new(
+            MissionConfig::default(),
+            vec![
+                MissionTask {
+                    kind: TaskKind::Pick,
+                    item: 0,
+                    position: Vector3::new(2.0, 0.0, 0.45),
+                },
+                MissionTask {
+                    kind: TaskKind::Place,
+                    item: 0,
+                    position: Vector3::new(4.0, 0.0, 0.35),
+                },
+            ],
+            Vector3::zeros(),
+        )
+    }
+
+    #[test]
+    fn phases_follow_distance_then_progress() {
+        let mut m = pick_and_place();
+        assert_eq!(m.step(0.5, TaskProgress::Active).phase, Phase::Reach);
+        let s = m.step(0.09, TaskProgress::Active);
+        assert!(s.changed && s.phase == Phase::Final);
+        // Moving away again does not hand the arm back to the reacher.
+        assert_eq!(m.step(0.5, TaskProgress::Active).phase, Phase::Final);
+        let s = m.step(0.5, TaskProgress::Done);
+        assert_eq!((s.task_index, s.phase), (1, Phase::Reach));
+        m.step(0.05, TaskProgress::Active);
+        let s = m.step(0.05, TaskProgress::Done);
+        assert_eq!(s.phase, Phase::Complete);
+        assert!(m.current_task().is_none());
+    }
+
+    #[test]
+    fn next_waypoint_is_next_task_or_run_out_beyond_the_last() {
+        let mut m = pick_and_place();
+        let current = m.current_task().unwrap().position;
+        assert_eq!(m.next_waypoint(&current), Vector3::new(4.0, 0.0, 0.35));
+        m.resume(1, Phase::Reach);
+        let current = m.current_task().unwrap().position;
+        let w = m.next_waypoint(&current);
+        assert!((w - Vector3::new(6.0, 0.0, 0.35)).norm() < 1e-12, "{w}");
+    }
+
+    #[test]
+    fn empty_mission_is_complete() {
+        let m = Mission::new(MissionConfig::default(), vec![], Vector3::zeros());
+        assert_eq!(m.phase(), Phase::Complete);
+    }
+}
