@@ -324,10 +324,10 @@ fn find_bad_number(text: &str) -> Option<(String, String)> {
             .unwrap_or("")
             .trim_end_matches('/');
         let attributes = parse_attributes(tag);
-        if element == "joint" || element == "link" {
-            if let Some((_, name)) = attributes.iter().find(|(k, _)| *k == "name") {
-                owner = format!("{element} '{name}'");
-            }
+        if (element == "joint" || element == "link")
+            && let Some((_, name)) = attributes.iter().find(|(k, _)| *k == "name")
+        {
+            owner = format!("{element} '{name}'");
         }
         for (key, value) in &attributes {
             if !NUMERIC_ATTRIBUTES.contains(key) || element == "material" {
