@@ -2,6 +2,8 @@
 
 mod config_dir;
 mod kin;
+mod plots;
+mod report;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

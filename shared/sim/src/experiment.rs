@@ -117,6 +117,20 @@ pub struct TrialResult {
     pub round_trips_s: Vec<f64>,
 }
 
+/// A top-down record of one trial, for the trajectory plot: world x, y of the base, the end
+/// effector and the objects, sampled at the control rate (or decimated).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct TrialTrace {
+    /// Base position samples.
+    pub base: Vec<(f64, f64)>,
+    /// End-effector position samples.
+    pub ee: Vec<(f64, f64)>,
+    /// Position samples of each object, one list per object.
+    pub objects: Vec<Vec<(f64, f64)>>,
+    /// Container centres.
+    pub containers: Vec<(f64, f64)>,
+}
+
 /// One row of a results table: the trials of one method, speed, robot and object motion.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TableRow {
