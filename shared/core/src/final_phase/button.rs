@@ -148,7 +148,10 @@ mod tests {
             if out.stage == FinalPhaseStage::Approach {
                 lowest_before_push = lowest_before_push.min(z);
             }
-            if matches!(out.stage, FinalPhaseStage::Pushing | FinalPhaseStage::Retracting) {
+            if matches!(
+                out.stage,
+                FinalPhaseStage::Pushing | FinalPhaseStage::Retracting
+            ) {
                 max_push_speed = max_push_speed.max(out.twist.fixed_rows::<3>(0).norm());
             }
             world.advance(&out);
@@ -168,19 +171,29 @@ mod tests {
         let button = config.button;
         assert!(lowest_before_push > button.hover_height - button.hover_tolerance - 1e-3);
         assert!(
-            lowest <= -button.press_depth + button.depth_tolerance && lowest > -button.press_depth - 0.003,
+            lowest <= -button.press_depth + button.depth_tolerance
+                && lowest > -button.press_depth - 0.003,
             "lowest point {lowest} m relative to the button top"
         );
-        assert!(max_push_speed <= button.push_speed + 1e-9, "{max_push_speed}");
+        assert!(
+            max_push_speed <= button.push_speed + 1e-9,
+            "{max_push_speed}"
+        );
         let end = world.tool.translation.vector - BUTTON;
-        assert!((end - Vector3::z() * button.hover_height).norm() < button.hover_tolerance + 1e-3, "{end}");
+        assert!(
+            (end - Vector3::z() * button.hover_height).norm() < button.hover_tolerance + 1e-3,
+            "{end}"
+        );
     }
 
     #[test]
     fn retracts_after_the_timeout_when_the_button_blocks_the_tool() {
         let config = FinalPhaseConfig::default();
         let mut controller = ButtonController::new(config.servo, config.button);
-        let tool = Isometry3::new(BUTTON + Vector3::z() * config.button.hover_height, Vector3::x() * PI);
+        let tool = Isometry3::new(
+            BUTTON + Vector3::z() * config.button.hover_height,
+            Vector3::x() * PI,
+        );
         let mut world = KinematicWorld::new(tool, 0.0, TargetPath::Static(BUTTON), DT);
         world.graspable = false;
         let mut retracted = false;

@@ -138,13 +138,19 @@ mod tests {
         }
         let opened_at = opened_at.expect("never opened");
         let miss = (opened_at - release_point).norm();
-        assert!(miss < config.drop.release_tolerance, "opened {miss} m from the release point");
+        assert!(
+            miss < config.drop.release_tolerance,
+            "opened {miss} m from the release point"
+        );
         assert!(done, "never finished");
         assert!(world.gripper_opening >= config.drop.released_opening);
         assert!(world.gripper_opening <= OPEN_WIDTH);
         // Still over the opening when done.
         let offset = world.tool.translation.vector - release_point;
-        assert!(offset.xy().norm() < config.drop.release_tolerance, "{offset}");
+        assert!(
+            offset.xy().norm() < config.drop.release_tolerance,
+            "{offset}"
+        );
     }
 
     #[test]
@@ -156,7 +162,10 @@ mod tests {
             radius: 0.5,
             speed: 0.05,
         };
-        let tool = Isometry3::new(path.at(0.0).position + Vector3::new(0.0, 0.08, 0.15), Vector3::x() * PI);
+        let tool = Isometry3::new(
+            path.at(0.0).position + Vector3::new(0.0, 0.08, 0.15),
+            Vector3::x() * PI,
+        );
         let mut world = KinematicWorld::new(tool, 0.3, path, DT);
         world.graspable = false;
         world.gripper_opening = 0.03;
@@ -164,9 +173,8 @@ mod tests {
         for _ in 0..200 {
             let out = controller.step(&world.input());
             if out.gripper == GripperCommand::Open && released_offset.is_none() {
-                released_offset = Some(
-                    world.tool_from_target() - Vector3::z() * config.drop.release_height,
-                );
+                released_offset =
+                    Some(world.tool_from_target() - Vector3::z() * config.drop.release_height);
             }
             world.advance(&out);
             if out.progress == TaskProgress::Done {
@@ -187,7 +195,11 @@ mod tests {
         let out = controller.step(&input);
         assert_eq!(out.gripper, GripperCommand::Close);
         assert_eq!(out.stage, FinalPhaseStage::Approach);
-        assert!(out.twist[2] < 0.0, "moves down toward the release point: {}", out.twist);
+        assert!(
+            out.twist[2] < 0.0,
+            "moves down toward the release point: {}",
+            out.twist
+        );
 
         let mut bad = input;
         bad.base_pose.yaw = f64::NAN;

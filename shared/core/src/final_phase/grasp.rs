@@ -4,7 +4,8 @@
 //! 1. [`Approach`](FinalPhaseStage::Approach): servo the tool top-down onto the grasp point
 //!    (target + `grasp_offset`) with k_P and the object's velocity as feed-forward. The goal is
 //!    raised by `descent_slope` × horizontal error so the fingers come down onto the object. When
-//!    the tool is within ε_g (`close_distance`) of the grasp point, close.
+//!    the tool is within ε_g (`close_distance`) of the grasp point and within `close_max_tilt`
+//!    of top-down, close.
 //! 2. [`Closing`](FinalPhaseStage::Closing): keep servoing onto the grasp point while the
 //!    fingers close, until the opening falls to `closed_opening` or `closing_timeout` passes.
 //! 3. [`Lifting`](FinalPhaseStage::Lifting): rise by `lift_height` above the grasp point.
@@ -19,7 +20,7 @@ use nalgebra::Vector3;
 
 use super::{
     FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseOutput, FinalPhaseStage,
-    GraspConfig, ServoConfig, StageClock,
+    GraspConfig, ServoConfig, StageClock, top_down_angle,
 };
 use crate::types::GripperCommand;
 
@@ -89,6 +90,7 @@ impl GraspController {
         let grasp_point = self.grasp_point(input);
         if self.stage == FinalPhaseStage::Approach
             && (grasp_point - tool).norm() < self.config.close_distance
+            && top_down_angle(&input.tool_pose.rotation) < self.config.close_max_tilt
         {
             self.enter(FinalPhaseStage::Closing, input.t);
         }
@@ -124,7 +126,9 @@ impl GraspController {
             }
             (FinalPhaseStage::Approach, _) => {
                 let grasp_point = self.grasp_point(input);
-                let horizontal = (grasp_point - input.tool_pose.translation.vector).xy().norm();
+                let horizontal = (grasp_point - input.tool_pose.translation.vector)
+                    .xy()
+                    .norm();
                 let raised = grasp_point + Vector3::z() * (self.config.descent_slope * horizontal);
                 (raised, input.target.velocity)
             }
@@ -159,7 +163,6 @@ impl FinalPhaseController for GraspController {
 #[cfg(test)]
 mod tests {
     use super::super::sim::{CUBE_WIDTH, KinematicWorld, TargetPath};
-    use super::super::top_down_angle;
     use super::*;
     use crate::types::{TaskProgress, Twist};
     use nalgebra::{Isometry3, Vector3};
@@ -190,7 +193,9 @@ mod tests {
         let cube0 = path.at(0.0).position;
         // 20° off top-down about a skew axis.
         let rotation = nalgebra::UnitQuaternion::from_scaled_axis(Vector3::x() * PI)
-            * nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(0.2, 0.3, 0.0).normalize() * 0.35);
+            * nalgebra::UnitQuaternion::from_scaled_axis(
+                Vector3::new(0.2, 0.3, 0.0).normalize() * 0.35,
+            );
         let tool = Isometry3::from_parts((cube0 + start_offset).into(), rotation);
         let mut world = KinematicWorld::new(tool, base_speed, path, DT);
         let config = super::super::FinalPhaseConfig::default();
@@ -217,7 +222,8 @@ mod tests {
                 run.close_tilt = top_down_angle(&world.tool.rotation);
             }
             if out.stage == FinalPhaseStage::Closing {
-                run.max_lateral_while_closing = run.max_lateral_while_closing.max(offset.xy().norm());
+                run.max_lateral_while_closing =
+                    run.max_lateral_while_closing.max(offset.xy().norm());
             }
             if out.stage == FinalPhaseStage::Approach && offset.xy().norm() > 0.02 {
                 run.min_height_while_off_axis = run.min_height_while_off_axis.min(offset.z);
@@ -236,8 +242,15 @@ mod tests {
         let config = GraspConfig::default();
         let servo = ServoConfig::default();
         let close = run.close_distance.expect("the gripper never closed");
-        assert!(close < config.close_distance, "closed {close} m from the cube");
-        assert!(run.close_tilt < 5f64.to_radians(), "tilt {} rad at closing", run.close_tilt);
+        assert!(
+            close < config.close_distance,
+            "closed {close} m from the cube"
+        );
+        assert!(
+            run.close_tilt < config.close_max_tilt,
+            "tilt {} rad at closing",
+            run.close_tilt
+        );
         // The fingers close from 80 mm to 30 mm: each side clears the cube by up to 25 mm, and
         // less as they close. The cube must stay well inside.
         assert!(
@@ -255,7 +268,8 @@ mod tests {
         assert!((run.world.gripper_opening - CUBE_WIDTH).abs() < 1e-9);
         let lifted = run.world.tool.translation.vector.z - cube_at_close_z;
         assert!(
-            lifted >= config.lift_height - config.lift_tolerance && lifted < config.lift_height + 0.01,
+            lifted >= config.lift_height - config.lift_tolerance
+                && lifted < config.lift_height + 0.01,
             "lifted {lifted} m"
         );
         assert!(run.max_linear <= servo.max_linear_speed + 1e-9);
@@ -264,7 +278,11 @@ mod tests {
 
     #[test]
     fn grasps_and_lifts_a_static_cube_while_the_base_drives() {
-        let run = run_grasp(TargetPath::Static(CUBE), 0.3, Vector3::new(-0.06, 0.04, 0.07));
+        let run = run_grasp(
+            TargetPath::Static(CUBE),
+            0.3,
+            Vector3::new(-0.06, 0.04, 0.07),
+        );
         assert_grasped_and_lifted(&run, CUBE.z);
     }
 
@@ -317,6 +335,35 @@ mod tests {
     }
 
     #[test]
+    fn comes_down_onto_a_cube_approached_from_the_side() {
+        // The tool starts level with the cube, 9 cm to the side. Going straight there would
+        // sweep the fingers into the cube; the descent cone must bring it over the top first.
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE - Vector3::new(0.09, 0.0, 0.0), Vector3::x() * PI);
+        let mut world = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT);
+        let cube_top = CUBE_WIDTH / 2.0;
+        for _ in 0..200 {
+            let out = controller.step(&world.input());
+            let offset = world.tool_from_target();
+            let horizontal = offset.xy().norm();
+            if out.stage == FinalPhaseStage::Approach && horizontal > 0.01 && horizontal < 0.04 {
+                assert!(
+                    offset.z > cube_top,
+                    "tool {} m above the cube centre at {horizontal} m to the side",
+                    offset.z
+                );
+            }
+            if out.gripper == GripperCommand::Close {
+                assert!(offset.norm() < config.grasp.close_distance);
+                return;
+            }
+            world.advance(&out);
+        }
+        panic!("never closed");
+    }
+
+    #[test]
     fn lifts_after_the_timeout_if_the_fingers_stall() {
         let config = super::super::FinalPhaseConfig::default();
         let mut controller = GraspController::new(config.servo, config.grasp);
@@ -351,7 +398,11 @@ mod tests {
             assert_eq!(out.twist, Twist::zeros());
             assert!(out.input_rejected);
             assert_eq!(out.stage, FinalPhaseStage::Closing);
-            assert_eq!(out.gripper, GripperCommand::Close, "a held cube is not dropped");
+            assert_eq!(
+                out.gripper,
+                GripperCommand::Close,
+                "a held cube is not dropped"
+            );
             assert_eq!(out.progress, TaskProgress::Active);
         }
         assert!(!controller.step(&good).input_rejected);

@@ -122,7 +122,12 @@ pub struct FinalPhaseInput {
 impl FinalPhaseInput {
     /// True when every number in the input is finite.
     pub fn is_finite(&self) -> bool {
-        let pose_finite = self.tool_pose.translation.vector.iter().all(|x| x.is_finite())
+        let pose_finite = self
+            .tool_pose
+            .translation
+            .vector
+            .iter()
+            .all(|x| x.is_finite())
             && self.tool_pose.rotation.coords.iter().all(|x| x.is_finite());
         let base_finite = [
             self.base_pose.x,
@@ -256,9 +261,7 @@ pub fn build(kind: FinalPhaseKind, config: &FinalPhaseConfig) -> Box<dyn FinalPh
     match kind {
         FinalPhaseKind::Grasp => Box::new(GraspController::new(config.servo, config.grasp)),
         FinalPhaseKind::Drop => Box::new(DropController::new(config.servo, config.drop)),
-        FinalPhaseKind::PressButton => {
-            Box::new(ButtonController::new(config.servo, config.button))
-        }
+        FinalPhaseKind::PressButton => Box::new(ButtonController::new(config.servo, config.button)),
     }
 }
 
@@ -434,6 +437,9 @@ pub struct GraspConfig {
     /// 0.01: a 30 mm cube in the 80 mm Franka Hand leaves 25 mm per side, so 1 cm keeps the
     /// fingers well clear while servoing continues to tighten the error during closure.
     pub close_distance: f64,
+    /// The gripper closes only when the tool z axis is also within this angle of world −z,
+    /// rad (0.087 = 5°: closing while tilted would push the cube with one finger first).
+    pub close_max_tilt: f64,
     /// Grasp point relative to the target (cube centre), world frame, m. Zero grasps the centre.
     pub grasp_offset: [f64; 3],
     /// Slope of the descent cone: while approaching, the goal is raised by this times the
@@ -456,6 +462,7 @@ impl Default for GraspConfig {
     fn default() -> Self {
         Self {
             close_distance: 0.01,
+            close_max_tilt: 5f64.to_radians(),
             grasp_offset: [0.0; 3],
             descent_slope: 1.0,
             closed_opening: 0.032,
@@ -472,6 +479,7 @@ impl GraspConfig {
             file,
             &[
                 ("grasp.close_distance", self.close_distance),
+                ("grasp.close_max_tilt", self.close_max_tilt),
                 ("grasp.closed_opening", self.closed_opening),
                 ("grasp.closing_timeout", self.closing_timeout),
                 ("grasp.lift_height", self.lift_height),
@@ -631,7 +639,10 @@ mod tests {
         let err = "push".parse::<FinalPhaseKind>().unwrap_err();
         assert_eq!(err.name, "push");
         let message = err.to_string();
-        assert!(message.contains("'push'") && message.contains("press-button"), "{message}");
+        assert!(
+            message.contains("'push'") && message.contains("press-button"),
+            "{message}"
+        );
         assert!("Grasp".parse::<FinalPhaseKind>().is_err());
     }
 
@@ -678,7 +689,11 @@ mod tests {
         assert_eq!(active.kind(), FinalPhaseKind::PressButton);
         let pressing = active.step(&input);
         assert_eq!(pressing.stage, FinalPhaseStage::Approach);
-        assert!(pressing.twist[2] > 0.0, "rises to the hover pose first: {}", pressing.twist);
+        assert!(
+            pressing.twist[2] > 0.0,
+            "rises to the hover pose first: {}",
+            pressing.twist
+        );
 
         // And back: the new grasp controller starts from its own beginning.
         active = build(FinalPhaseKind::Grasp, &config);
@@ -736,7 +751,10 @@ mod tests {
         )
         .unwrap_err()
         .to_string();
-        assert!(inverted.contains("servo.min_correction_speed"), "{inverted}");
+        assert!(
+            inverted.contains("servo.min_correction_speed"),
+            "{inverted}"
+        );
     }
 
     #[test]
@@ -750,7 +768,10 @@ mod tests {
         let twist = servo.twist(&tool, &goal, &feed_forward, limit);
         assert!((twist[0] - 0.15).abs() < 1e-12, "{twist}");
         assert!((twist[1] - 0.03).abs() < 1e-12, "{twist}");
-        assert!(twist.fixed_rows::<3>(3).norm() < 1e-9, "top-down needs no turn: {twist}");
+        assert!(
+            twist.fixed_rows::<3>(3).norm() < 1e-9,
+            "top-down needs no turn: {twist}"
+        );
 
         // A stopped base still gets the floor; a fast one is capped by the hard limit.
         let stopped = servo.correction_speed_limit(&BaseVelocity::default());
