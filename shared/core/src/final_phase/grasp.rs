@@ -12,7 +12,8 @@
 //!    Horizontally the goal keeps moving with the object's velocity latched at the end of
 //!    closure: once the object is in the hand its estimate moves with the tool, and feeding that
 //!    back would keep whatever velocity the tool happens to have.
-//! 4. [`Done`](FinalPhaseStage::Done): at the lift height; the same goal is held.
+//! 4. [`Done`](FinalPhaseStage::Done): at the lift height; the lift goal is still tracked (it
+//!    keeps moving with the latched velocity) until the sequencer hands the arm on.
 //!
 //! Grasp success is decided by the world (the simulator's grasp model), never here.
 
