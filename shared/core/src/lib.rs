@@ -4,6 +4,7 @@
 //! Everything here is pure code: no IPC and no I/O beyond reading model and configuration files.
 //!
 //! - [`chain`]: serial chains loaded from URDF.
+//! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
 //! - [`mission`]: which target is current, which is next, which phase is active.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
@@ -12,6 +13,7 @@
 
 pub mod chain;
 pub mod error;
+pub mod final_phase;
 pub mod kinematics;
 pub mod mission;
 pub mod robot;
