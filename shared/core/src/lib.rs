@@ -10,10 +10,15 @@
 //! - [`types`]: value types shared by the control modules.
 //! - [`error`]: errors that name the file and element at fault.
 
+pub mod base_controller;
 pub mod chain;
 pub mod error;
+pub mod input_check;
 pub mod kinematics;
 pub mod mission;
+pub mod quintic;
+pub mod reach_range;
+pub mod reacher;
 pub mod robot;
 pub mod types;
 
