@@ -6,6 +6,29 @@
 //! then on, every step, a quintic is planned from the tool's current state to the predicted
 //! pre-grasp point, arriving at T = max(t_R, t_A) with the object's velocity, and the command is
 //! the trajectory's velocity one control step ahead.
+//!
+//! Choices (each a [`ReacherConfig`] value where it is a number):
+//! - **Transit distance.** t_A uses the distance from the tool's position in the current base
+//!   frame to the pre-grasp point predicted at t_R, expressed in the base frame predicted at t_R
+//!   (the base controller's `range_entry_pose`). The plain world distance would include the
+//!   base's own drive and start the arm as soon as the mission begins.
+//! - **v_B** is the base controller's commanded forward speed, so the trigger does not fire at
+//!   start-up while the base is still at rest.
+//! - **Trigger latch.** Once started, the reacher keeps reaching until the task changes, even if
+//!   t_R > t_A again (t_A shrinks as the arm moves; flipping back would make the arm oscillate).
+//! - **Pre-grasp point.** The goal is `pregrasp_height` above the object; the final-phase
+//!   controller descends the rest.
+//! - **Arrival velocity.** The trajectory ends with the object's estimated velocity and zero
+//!   acceleration, so the tool matches a moving object; the end point is the object's position
+//!   extrapolated over the trajectory duration.
+//! - **Start state.** The quintic starts from the measured tool pose with the twist and
+//!   acceleration of [`ToolState`] (normally the previous command), so replanning is smooth.
+//! - **Orientation.** The gripper goes to a top-down pose (tool z axis straight down). Its yaw is
+//!   the object's yaw modulo its symmetry when known, else the ready pose's yaw relative to the
+//!   base, at the base heading predicted at t_R. The rotation follows the same quintic time
+//!   scaling on the remaining rotation vector (world frame), ending at rest. The palm camera is
+//!   not pointed at the object during the approach: perception is outside this module, and a
+//!   top-down palm camera already looks at the ground ahead of the tool.
 
 use std::path::Path;
 
@@ -623,6 +646,18 @@ mod tests {
             (yaw - (1.9 - std::f64::consts::FRAC_PI_2)).abs() < 1e-9,
             "{yaw}"
         );
+    }
+
+    #[test]
+    fn frankie_ready_tool_is_the_ready_pose_tool_point_top_down() {
+        let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let robot = Robot::load(&config_dir, "frankie").unwrap();
+        let reacher = Reacher::new(ReacherConfig::default(), &robot);
+        let ready = reacher.ready_tool();
+        assert!((ready.translation.vector - Vector3::new(0.634, 0.0, 0.7926)).norm() < 1e-3);
+        let down = ready.rotation * Vector3::z();
+        eprintln!("ready tool z {down:?}, yaw {}", tool_yaw(&ready.rotation));
+        assert!(down.z < -0.99, "ready tool z axis {down:?}");
     }
 
     #[test]
