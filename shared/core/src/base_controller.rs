@@ -11,6 +11,20 @@
 //! Everything is recomputed from the latest estimates every step, so a moving target is followed.
 //! Once the base has gone by the target (the "passed" latch) it steers straight for the next
 //! target instead.
+//!
+//! Choices (each a [`BaseControllerConfig`] value where it is a number):
+//! - **Heading of ξ_C**: toward the next target, as ALGORITHMS.md says; the tangent direction is
+//!   the alternative ([`ApproachHeading`]).
+//! - **Side**: the tangent point on the side of the line base→target where the next target lies,
+//!   with hysteresis ([`BaseControllerConfig::side_hysteresis`]).
+//! - **Passed latch**: set when the base is within r_C of the target, or the target is abeam or
+//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, the
+//!   goal is the next target with the heading pointing at it (β = 0), and t_R is 0.
+//! - **β sign**: Corke's `β = θ_goal − ψ`, the convention under which k_α > 1, k_β < 0 is stable.
+//! - **t_R path model**: straight to ξ_C, then straight on along ξ_C's heading, at v_F, with the
+//!   target moving at its estimated velocity; "in range" is the horizontal distance from the arm
+//!   base (first arm joint) to the target within the robot's `manipulation_range`.
+//! - **Limits**: v = min(v_F, v_max) and ω saturated at ±ω_max, from the two virtual base joints.
 
 use std::path::Path;
 

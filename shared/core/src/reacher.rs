@@ -27,8 +27,8 @@
 //!   the object's yaw modulo its symmetry when known, else the ready pose's yaw relative to the
 //!   base, at the base heading predicted at t_R. The rotation follows the same quintic time
 //!   scaling on the remaining rotation vector (world frame), ending at rest. The palm camera is
-//!   not pointed at the object during the approach: perception is outside this module, and a
-//!   top-down palm camera already looks at the ground ahead of the tool.
+//!   not pointed at the object during the approach: the palm fisheye (about 180° field of view)
+//!   keeps the object in view from a top-down pose.
 
 use std::path::Path;
 
