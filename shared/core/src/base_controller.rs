@@ -237,6 +237,9 @@ pub struct PolarCommand {
     pub beta: f64,
 }
 
+/// Floor under the configured ρ clamp, m, so that a zero `min_goal_distance` cannot divide by 0.
+const MIN_GOAL_DISTANCE: f64 = 1e-3;
+
 /// Corke's polar controller at constant forward speed: `ω = (k_α·α + k_β·β)·v/max(ρ, ρ_min)`.
 ///
 /// β uses Corke's sign convention, `β = θ_goal − ψ` (ψ: direction of the vector to the goal),
@@ -252,8 +255,8 @@ pub fn polar_control(
     let psi = to_goal.y.atan2(to_goal.x);
     let alpha = wrap_angle(psi - base.yaw);
     let beta = wrap_angle(goal.yaw - psi);
-    let omega =
-        (config.k_alpha * alpha + config.k_beta * beta) * speed / rho.max(config.min_goal_distance);
+    let omega = (config.k_alpha * alpha + config.k_beta * beta) * speed
+        / rho.max(config.min_goal_distance).max(MIN_GOAL_DISTANCE);
     PolarCommand {
         omega,
         rho,
@@ -428,6 +431,8 @@ impl BaseController {
         speed: f64,
     ) -> (f64, BasePose) {
         let range = self.model.manipulation_range;
+        // A zero speed (from a degenerate configuration) would make the prediction NaN.
+        let speed = speed.max(1e-3);
         let target_xy = xy(&target.position);
         let target_velocity = xy(&target.velocity);
         let arm_base_at =
@@ -827,6 +832,35 @@ mod tests {
             })
             .unwrap_err();
         assert_eq!(err.field, "target.position");
+    }
+
+    #[test]
+    fn a_degenerate_configuration_still_gives_finite_outputs() {
+        let config = BaseControllerConfig {
+            forward_speed: 0.0,
+            min_goal_distance: 0.0,
+            ..BaseControllerConfig::default()
+        };
+        let mut controller = BaseController::new(config, frankie_like());
+        for target in [Vector3::new(3.0, 0.0, 0.45), Vector3::new(0.0, 0.0, 0.45)] {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base: BasePose::new(0.0, 0.0, 0.0),
+                    target: TargetEstimate::fixed(target),
+                    next_target: target,
+                })
+                .unwrap();
+            let values = [
+                out.command.v,
+                out.command.omega,
+                out.time_to_range,
+                out.range_entry_pose.x,
+                out.range_entry_pose.yaw,
+                out.closest_approach.x,
+            ];
+            assert!(values.iter().all(|v| v.is_finite()), "{out:?}");
+        }
     }
 
     #[test]

@@ -42,6 +42,12 @@ use crate::quintic::{PointState, Quintic3};
 use crate::robot::Robot;
 use crate::types::{BaseVelocity, TargetEstimate, Twist, wrap_angle};
 
+/// Floor on k_A·v_B in t_A, m/s, guarding against a zero or negative configured k_A.
+const MIN_ARM_SPEED: f64 = 1e-6;
+
+/// Cap on the trajectory duration T, s.
+const MAX_DURATION: f64 = 1e6;
+
 /// Tunables of the reacher (the `[reacher]` table of a controller config).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -249,8 +255,8 @@ impl Reacher {
             .isometry()
             .inverse_transform_point(&input.tool.pose.translation.vector.into());
         let base_speed = input.base_velocity.v.abs().max(config.min_base_speed);
-        let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm()
-            / (config.arm_speed_ratio * base_speed);
+        let arm_speed = (config.arm_speed_ratio * base_speed).max(MIN_ARM_SPEED);
+        let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm() / arm_speed;
 
         if self.mode == ReachMode::Holding && time_to_range <= transit_time {
             self.mode = ReachMode::Reaching;
@@ -259,7 +265,13 @@ impl Reacher {
             return Ok(self.hold(input, transit_time));
         }
 
-        let duration = time_to_range.max(transit_time).max(config.min_duration);
+        // At least one control period and the configured floor; capped so that a degenerate
+        // configuration cannot produce an infinite duration.
+        let duration = time_to_range
+            .max(transit_time)
+            .max(config.min_duration)
+            .max(input.dt)
+            .min(MAX_DURATION);
         let goal_position = input.target.predict(duration) + pregrasp;
         let current_yaw = tool_yaw(&input.tool.pose.rotation);
         let goal_yaw = match input.target_yaw {
@@ -658,6 +670,41 @@ mod tests {
         let down = ready.rotation * Vector3::z();
         eprintln!("ready tool z {down:?}, yaw {}", tool_yaw(&ready.rotation));
         assert!(down.z < -0.99, "ready tool z axis {down:?}");
+    }
+
+    #[test]
+    fn a_degenerate_configuration_still_gives_finite_outputs() {
+        let config = ReacherConfig {
+            arm_speed_ratio: 0.0,
+            min_duration: 0.0,
+            min_base_speed: 0.0,
+            ..ReacherConfig::default()
+        };
+        let mut reacher = Reacher::with_ready_tool(config, ready_tool());
+        let out = reacher
+            .step(&ReacherInput {
+                task_index: 0,
+                base: BasePose::default(),
+                base_velocity: BaseVelocity::default(),
+                tool: ToolState {
+                    pose: ready_tool(),
+                    twist: Twist::zeros(),
+                    acceleration: Vector6::zeros(),
+                },
+                target: TargetEstimate::fixed(ready_tool().translation.vector),
+                target_yaw: None,
+                time_to_range: 0.0,
+                range_entry_pose: BasePose::default(),
+                dt: DT,
+            })
+            .unwrap();
+        assert!(
+            out.twist
+                .iter()
+                .chain(out.acceleration.iter())
+                .all(|v| v.is_finite())
+        );
+        assert!(out.transit_time.is_finite() && out.duration.is_finite());
     }
 
     #[test]
