@@ -171,7 +171,8 @@ pub struct BaseControllerInput {
 pub struct BaseControllerOutput {
     /// Base velocity command, within the base's v and ω limits.
     pub command: BaseVelocity,
-    /// Closest-approach pose ξ_C (kept at its last value once the target is passed).
+    /// Closest-approach pose ξ_C (kept at its last value once the target is passed; the base
+    /// pose at the task's first step if the target was already passed then).
     pub closest_approach: BasePose,
     /// The side on which the base passes the target.
     pub side: PassSide,
@@ -335,6 +336,7 @@ impl BaseController {
             self.task_index = Some(input.task_index);
             self.passed = false;
             self.side = PassSide::Left;
+            self.closest_approach = input.base;
             self.update_side(input, true);
         } else {
             self.update_side(input, false);
@@ -710,6 +712,7 @@ mod tests {
             .unwrap();
         assert!(out.passed);
         assert_eq!(out.time_to_range, 0.0);
+        assert_eq!(out.closest_approach, BasePose::new(0.0, 0.0, 0.0));
         // The next target is 3 m away, 90° to the left, and the goal heading points at it
         // (β = 0): ω = k_α·α·v_F/ρ = 4·(π/2)·0.3/3.
         let expected = 4.0 * std::f64::consts::FRAC_PI_2 * 0.3 / 3.0;
