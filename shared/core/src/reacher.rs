@@ -241,7 +241,7 @@ impl Reacher {
         let time_to_range = input.time_to_range.max(0.0);
         let pregrasp = Vector3::z() * config.pregrasp_height;
 
-        // t_A: from the tool's position in today's base frame to the pre-grasp point predicted
+        // t_A: from the tool's position in the current base frame to the pre-grasp point predicted
         // at t_R, in the base frame predicted at t_R. The distance is the arm's own travel
         // relative to the base; the world distance would include the base's drive and trigger
         // the arm far too early.
@@ -275,10 +275,11 @@ impl Reacher {
         let goal_position = input.target.predict(duration) + pregrasp;
         let current_yaw = tool_yaw(&input.tool.pose.rotation);
         let goal_yaw = match input.target_yaw {
-            Some(yaw) => {
+            Some(yaw) if config.yaw_symmetry > 0.0 => {
                 let symmetry = config.yaw_symmetry;
                 yaw + (wrap_angle(current_yaw - yaw) / symmetry).round() * symmetry
             }
+            Some(yaw) => yaw,
             None => input.range_entry_pose.yaw + tool_yaw(&self.ready_tool.rotation),
         };
         let goal_rotation = top_down(goal_yaw);
