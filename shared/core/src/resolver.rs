@@ -68,9 +68,10 @@ pub struct ResolverConfig {
     pub manipulability_gain: f64,
     /// `k_ε`: gain of the facing term ([`Facing`]). 0.5.
     pub facing_gain: f64,
-    /// `W`: weight of the soft base-velocity tracking rows. Chosen 100: it dominates the base
-    /// joint weight `Y/e_t` for any `e_t ≥ 1e-4` and the slack weight `1/e_t` for `e_t > 1 cm`,
-    /// so the base follows the base controller unless the tool twist cannot be met otherwise.
+    /// `W`: weight of the soft base-velocity tracking rows. Chosen 1e4: ten times the largest
+    /// slack weight `1/e_t` (1000 at the `e_t` floor) and far above the base joint weight
+    /// `Y/e_t`, so the base follows the base controller and the arm (then the slack) absorbs
+    /// the tool twist, as the paper's base velocity is "controlled directly".
     pub base_tracking_weight: f64,
     /// `p_s`: damper stop distance, rad (or m for prismatic joints). 0.1.
     pub damper_stop_distance: f64,
@@ -94,7 +95,7 @@ impl Default for ResolverConfig {
             min_position_error: 1e-3,
             manipulability_gain: 1.0,
             facing_gain: 0.5,
-            base_tracking_weight: 100.0,
+            base_tracking_weight: 1e4,
             damper_stop_distance: 0.1,
             damper_influence_distance: 0.9,
             slack_bound: 10.0,

@@ -48,7 +48,11 @@ fn run(config: HolisticConfig, max_steps: usize) -> (Option<usize>, f64) {
             arm_q: &arm_q,
             target,
         });
-        assert!(out.status.is_ok(), "QP failed at step {step}: {:?}", out.status);
+        assert!(
+            out.status.is_ok(),
+            "QP failed at step {step}: {:?}",
+            out.status
+        );
         if out.arrived {
             assert_eq!(controller.error_count(), 0);
             return (Some(step), worst_ratio);
