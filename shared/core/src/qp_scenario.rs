@@ -5,10 +5,11 @@
 //! random joint velocity within a fraction of the limits, so `J q̇ = ν` is feasible.
 
 use nalgebra::{DVector, Matrix6xX};
-use rand::{Rng, RngExt};
+use rand::{Rng, RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 
 use crate::kinematics::{BasePose, manipulability_gradient};
-use crate::resolver::{Facing, ResolverInput, arm_base_frame};
+use crate::resolver::{Facing, RedundancyResolver, ResolverInput, ResolverOutput, arm_base_frame};
 use crate::robot::{BASE_JOINTS, Robot};
 use crate::types::{BaseVelocity, Twist};
 
@@ -95,6 +96,19 @@ impl QpScenario {
         )
     }
 
+    /// `count` random scenarios from a ChaCha8 generator seeded with `seed` (reproducible).
+    pub fn random_set(
+        robot: &Robot,
+        config: &ScenarioConfig,
+        count: usize,
+        seed: u64,
+    ) -> Vec<Self> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..count)
+            .map(|_| Self::random(robot, config, &mut rng))
+            .collect()
+    }
+
     /// The scenario at a given state whose twist is produced by `joint_velocity`; the base
     /// target (when `base_tracking`) is the base part of `joint_velocity`.
     pub fn at(
@@ -128,6 +142,19 @@ impl QpScenario {
             facing: Facing::ArmJoint1 { tool_in_arm_base },
             base_velocity_target,
         }
+    }
+
+    /// The whole MotM control step for this scenario's state: kinematics, manipulability
+    /// gradient (Hessian), QP build and solve ([`RedundancyResolver::resolve_motm`]).
+    pub fn control_step(&self, robot: &Robot, resolver: &mut RedundancyResolver) -> ResolverOutput {
+        resolver.resolve_motm(
+            robot,
+            &self.base,
+            &self.arm_q,
+            self.twist,
+            self.position_error,
+            self.base_velocity_target,
+        )
     }
 
     /// The resolver input for this scenario.
