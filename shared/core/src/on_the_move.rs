@@ -20,10 +20,11 @@
 use nalgebra::{Vector3, Vector6};
 use serde::Deserialize;
 
-use crate::base_controller::{BaseController, BaseControllerConfig, BaseControllerInput, BaseModel};
+use crate::base_controller::{
+    BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
+};
 use crate::final_phase::{
-    FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage,
-    build,
+    FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
 };
 use crate::kinematics::BasePose;
 use crate::mission::{Mission, MissionConfig, MissionTask, Phase, TaskKind};
@@ -119,8 +120,15 @@ pub struct OnTheMove {
 
 impl OnTheMove {
     /// A controller for `robot` performing `tasks` from base position `start`.
-    pub fn new(robot: Robot, config: OnTheMoveConfig, tasks: Vec<MissionTask>, start: Vector3<f64>) -> Self {
-        let first_kind = tasks.first().map_or(FinalPhaseKind::Grasp, |t| t.kind.into());
+    pub fn new(
+        robot: Robot,
+        config: OnTheMoveConfig,
+        tasks: Vec<MissionTask>,
+        start: Vector3<f64>,
+    ) -> Self {
+        let first_kind = tasks
+            .first()
+            .map_or(FinalPhaseKind::Grasp, |t| t.kind.into());
         Self {
             mission: Mission::new(config.mission.clone(), tasks, start),
             base: BaseController::new(config.base.clone(), BaseModel::from_robot(&robot)),
@@ -154,8 +162,8 @@ impl OnTheMove {
     fn reach_target(&self, task: &MissionTask, target: &TargetEstimate) -> TargetEstimate {
         let mut aim = *target;
         if task.kind == TaskKind::Place {
-            aim.position.z += self.config.final_phase.drop.release_height
-                - self.config.reacher.pregrasp_height;
+            aim.position.z +=
+                self.config.final_phase.drop.release_height - self.config.reacher.pregrasp_height;
         }
         aim
     }
@@ -200,7 +208,12 @@ impl OnTheMove {
         };
         let finite = input.arm_q.iter().all(|q| q.is_finite())
             && input.arm_q.len() == self.robot.arm_dof()
-            && input.target.position.iter().chain(input.target.velocity.iter()).all(|v| v.is_finite())
+            && input
+                .target
+                .position
+                .iter()
+                .chain(input.target.velocity.iter())
+                .all(|v| v.is_finite())
             && input.gripper_opening.is_finite();
         if !finite {
             self.rejected_inputs += 1;
@@ -235,7 +248,13 @@ impl OnTheMove {
                     gripper_opening: input.gripper_opening,
                 });
                 self.last_acceleration = (out.twist - self.last_twist) / input.dt;
-                (out.twist, out.gripper, out.progress, Some(out.stage), ReachMode::Holding)
+                (
+                    out.twist,
+                    out.gripper,
+                    out.progress,
+                    Some(out.stage),
+                    ReachMode::Holding,
+                )
             }
             _ => {
                 let reached = self.reacher.step(&ReacherInput {
@@ -258,7 +277,13 @@ impl OnTheMove {
                     return self.hold(task_index, phase);
                 };
                 self.last_acceleration = out.acceleration;
-                (out.twist, self.resting_gripper(), TaskProgress::Active, None, out.mode)
+                (
+                    out.twist,
+                    self.resting_gripper(),
+                    TaskProgress::Active,
+                    None,
+                    out.mode,
+                )
             }
         };
         self.last_twist = twist;

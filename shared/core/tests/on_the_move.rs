@@ -25,7 +25,11 @@ const FINGER_SPEED: f64 = 0.1;
 const CONTAINER_HALF_WIDTH: f64 = 0.15;
 
 fn frankie() -> Robot {
-    Robot::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config"), "frankie").unwrap()
+    Robot::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config"),
+        "frankie",
+    )
+    .unwrap()
 }
 
 /// How a run ended.
@@ -46,8 +50,16 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
     let mut config = OnTheMoveConfig::default();
     config.base.forward_speed = V_F;
     let tasks = vec![
-        MissionTask { kind: TaskKind::Pick, item: 0, position: cube_start },
-        MissionTask { kind: TaskKind::Place, item: 0, position: container },
+        MissionTask {
+            kind: TaskKind::Pick,
+            item: 0,
+            position: cube_start,
+        },
+        MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: container,
+        },
     ];
     let limits = robot.limits();
     let mut arm_q = robot.config.ready_pose.clone();
@@ -70,7 +82,14 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
         let t = k as f64 * DT;
         let task = controller.mission().task_index();
         let target = if task == 0 {
-            TargetEstimate { position: cube, velocity: if held { Vector3::zeros() } else { cube_velocity } }
+            TargetEstimate {
+                position: cube,
+                velocity: if held {
+                    Vector3::zeros()
+                } else {
+                    cube_velocity
+                },
+            }
         } else {
             TargetEstimate::fixed(container)
         };
@@ -84,7 +103,10 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
             target,
         });
         assert!(out.base.v.is_finite() && out.base.omega.is_finite());
-        assert!(out.arm_qd.iter().all(|v| v.is_finite()), "NaN joint velocity at t={t}");
+        assert!(
+            out.arm_qd.iter().all(|v| v.is_finite()),
+            "NaN joint velocity at t={t}"
+        );
         if out.phase == Phase::Final && out.task_index == 0 {
             result.min_base_speed_in_grasp = result.min_base_speed_in_grasp.min(out.base.v);
             result.grasp_cycles += 1;
@@ -98,7 +120,7 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
             *q += qd * DT;
         }
         for (q, limit) in arm_q.iter().zip(&limits[2..]) {
-            let excursion = (limit.lower - q).max(q - limit.upper);
+            let excursion = (limit.position_min - q).max(q - limit.position_max);
             result.max_joint_excursion = result.max_joint_excursion.max(excursion);
         }
         // Gripper and cube.
@@ -146,20 +168,31 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
 }
 
 fn check(run: &Run) {
+    eprintln!("{run:?}");
     assert!(run.picked, "cube not picked: {run:?}");
-    assert!(run.placed_inside, "cube not dropped into the container: {run:?}");
+    assert!(
+        run.placed_inside,
+        "cube not dropped into the container: {run:?}"
+    );
     assert!(run.grasp_cycles > 10, "no grasp phase seen: {run:?}");
     assert!(
         run.min_base_speed_in_grasp >= 0.8 * V_F,
         "base slowed to {:.3} m/s during the grasp (v_F {V_F}): {run:?}",
         run.min_base_speed_in_grasp
     );
-    assert!(run.max_joint_excursion <= 1e-6, "a joint left its limits: {run:?}");
+    assert!(
+        run.max_joint_excursion <= 1e-6,
+        "a joint left its limits: {run:?}"
+    );
 }
 
 #[test]
 fn picks_a_static_cube_on_the_move_and_drops_it_into_the_container() {
-    let run = run(Vector3::new(2.0, 0.6, 0.45), Vector3::zeros(), Vector3::new(3.6, 1.6, 0.35));
+    let run = run(
+        Vector3::new(2.0, 0.6, 0.45),
+        Vector3::zeros(),
+        Vector3::new(3.6, 1.6, 0.35),
+    );
     check(&run);
     assert!(run.time < 25.0, "took {:.1} s", run.time);
 }
@@ -167,6 +200,10 @@ fn picks_a_static_cube_on_the_move_and_drops_it_into_the_container() {
 #[test]
 fn picks_a_moving_cube_on_the_move() {
     let velocity = Vector3::new(FRAC_PI_2.cos(), FRAC_PI_2.sin(), 0.0) * 0.03;
-    let run = run(Vector3::new(2.0, 0.5, 0.45), velocity, Vector3::new(3.6, 1.6, 0.35));
+    let run = run(
+        Vector3::new(2.0, 0.5, 0.45),
+        velocity,
+        Vector3::new(3.6, 1.6, 0.35),
+    );
     check(&run);
 }
