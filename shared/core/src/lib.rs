@@ -6,6 +6,7 @@
 //! - [`chain`]: serial chains loaded from URDF.
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
 //! - [`mission`]: which target is current, which is next, which phase is active.
+//! - [`planning`]: the planning baseline (plan once with a QP, then track open-loop).
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
 //! - [`error`]: errors that name the file and element at fault.
@@ -14,6 +15,7 @@ pub mod chain;
 pub mod error;
 pub mod kinematics;
 pub mod mission;
+pub mod planning;
 pub mod robot;
 pub mod types;
 
