@@ -37,6 +37,10 @@ pub struct PlanningConfig {
     pub max_reach: f64,
     /// Lowest gripper height, m.
     pub min_gripper_height: f64,
+    /// Largest planned base yaw rate, rad/s (capped by the robot's yaw-rate limit). Enforced,
+    /// linearised, as |lateral acceleration| ≤ max_yaw_rate · forward speed. Chosen well below
+    /// the base limit so the plan turns gracefully; the tracker may use the full limit.
+    pub max_yaw_rate: f64,
     /// Largest gripper speed, m/s (Panda Cartesian limit 1.7 m/s).
     pub max_gripper_speed: f64,
     /// Largest gripper acceleration, m/s² (Panda Cartesian limit 13 m/s²).
@@ -65,6 +69,10 @@ pub struct PlanningConfig {
     /// further one about the previous solution (sequential convex programming) until the base
     /// headings change by less than `heading_tolerance`. 1 means exactly one QP.
     pub max_passes: usize,
+    /// Trust region of the heading linearisation, rad: at every knot the planned base velocity
+    /// must point within this angle of the reference heading, so that the heading-dependent
+    /// constraints stay accurate. Further passes move the reference.
+    pub heading_trust_region: f64,
     /// Largest heading change, rad, between two passes at which the plan counts as converged.
     pub heading_tolerance: f64,
     /// Gains and limits of the open-loop tracker.
@@ -83,6 +91,7 @@ impl Default for PlanningConfig {
             min_forward_reach: 0.1,
             max_reach: 0.85,
             min_gripper_height: 0.05,
+            max_yaw_rate: 0.5,
             max_gripper_speed: 1.7,
             max_gripper_acceleration: 13.0,
             grasp_dwell: 0.5,
@@ -93,7 +102,8 @@ impl Default for PlanningConfig {
             lift_time: 0.5,
             drop_height: 0.15,
             stop_duration: 3.0,
-            max_passes: 3,
+            max_passes: 5,
+            heading_trust_region: 0.15,
             heading_tolerance: 0.01,
             tracking: TrackingConfig::default(),
         }
@@ -150,9 +160,11 @@ impl PlanningConfig {
             ("pass_distance", self.pass_distance),
             ("event_range_fraction", self.event_range_fraction),
             ("max_reach", self.max_reach),
+            ("max_yaw_rate", self.max_yaw_rate),
             ("max_gripper_speed", self.max_gripper_speed),
             ("max_gripper_acceleration", self.max_gripper_acceleration),
             ("heading_tolerance", self.heading_tolerance),
+            ("heading_trust_region", self.heading_trust_region),
             ("tracking.max_gripper_speed", self.tracking.max_gripper_speed),
             (
                 "tracking.max_gripper_angular_speed",

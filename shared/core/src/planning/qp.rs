@@ -305,6 +305,7 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
     }
 
     let targets = [request.cube.xy(), request.container.xy()];
+    let yaw_rate_limit = config.max_yaw_rate.min(geometry.yaw_rate_limit);
     for k in 0..=n {
         let heading = Vector2::new(about.heading[k].cos(), about.heading[k].sin());
         let mount = rotate(geometry.mount_offset, about.heading[k]);
@@ -377,6 +378,18 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
                 config.target_clearance + normal.dot(&target),
             );
         }
+        // Heading trust region: |lateral velocity| ≤ tan(δ) · forward velocity.
+        let lateral = Vector2::new(-heading.y, heading.x);
+        let slope = config.heading_trust_region.min(1.5).tan();
+        for sign in [1.0, -1.0] {
+            rows.at_most(
+                &[
+                    (layout.base_velocity(k, 0), sign * lateral.x - slope * heading.x),
+                    (layout.base_velocity(k, 1), sign * lateral.y - slope * heading.y),
+                ],
+                0.0,
+            );
+        }
         if k < n {
             // Base acceleration limit.
             rows.norm_at_most(
@@ -400,8 +413,8 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
                     &[
                         (layout.base_acceleration(k, 0), sign * lateral.x),
                         (layout.base_acceleration(k, 1), sign * lateral.y),
-                        (layout.base_velocity(k, 0), -geometry.yaw_rate_limit * heading.x),
-                        (layout.base_velocity(k, 1), -geometry.yaw_rate_limit * heading.y),
+                        (layout.base_velocity(k, 0), -yaw_rate_limit * heading.x),
+                        (layout.base_velocity(k, 1), -yaw_rate_limit * heading.y),
                     ],
                     0.0,
                 );

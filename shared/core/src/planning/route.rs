@@ -24,6 +24,8 @@ pub(crate) struct NominalRoute {
     acceleration: f64,
     /// Start heading, used while the route has not moved yet.
     start_yaw: f64,
+    /// Largest yaw rate of the nominal heading on the first leg, rad/s.
+    max_yaw_rate: f64,
     /// Time the gripper reaches the grasp position on the nominal route, s.
     pub grasp_time: f64,
     /// Time the gripper reaches the drop position on the nominal route, s.
@@ -99,6 +101,7 @@ impl NominalRoute {
             cruise_speed: request.base_speed,
             acceleration: 0.5 * geometry.base_acceleration,
             start_yaw: request.start_base.yaw,
+            max_yaw_rate: config.max_yaw_rate.min(geometry.yaw_rate_limit),
             grasp_time: 0.0,
             drop_time: 0.0,
         };
@@ -125,8 +128,21 @@ impl NominalRoute {
         }
     }
 
-    /// Base pose on the nominal route at time `t` (heading along the current leg).
+    /// Base pose on the nominal route at time `t`: heading along the current leg, except on the
+    /// first leg, where it turns from the start heading at no more than `max_yaw_rate`.
     pub fn pose(&self, t: f64) -> BasePose {
+        let pose = self.leg_pose(t);
+        let first_leg = self.vertices[1] - self.vertices[0];
+        if (pose.x - self.vertices[0].x).hypot(pose.y - self.vertices[0].y) < first_leg.norm() {
+            let turn = crate::types::wrap_angle(pose.yaw - self.start_yaw);
+            let limit = self.max_yaw_rate * t;
+            return BasePose::new(pose.x, pose.y, self.start_yaw + turn.clamp(-limit, limit));
+        }
+        pose
+    }
+
+    /// Base pose on the nominal route at time `t`, heading along the current leg.
+    fn leg_pose(&self, t: f64) -> BasePose {
         let mut remaining = self.arc_length(t);
         let mut yaw = self.start_yaw;
         for pair in self.vertices.windows(2) {
