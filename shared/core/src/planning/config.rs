@@ -102,8 +102,8 @@ impl Default for PlanningConfig {
             lift_time: 0.5,
             drop_height: 0.15,
             stop_duration: 3.0,
-            max_passes: 5,
-            heading_trust_region: 0.15,
+            max_passes: 8,
+            heading_trust_region: 0.3,
             heading_tolerance: 0.01,
             tracking: TrackingConfig::default(),
         }
@@ -155,7 +155,10 @@ impl PlanningConfig {
     pub fn validate(&self) -> Result<(), PlanningError> {
         let positive = [
             ("knot_spacing", self.knot_spacing),
-            ("gripper_acceleration_weight", self.gripper_acceleration_weight),
+            (
+                "gripper_acceleration_weight",
+                self.gripper_acceleration_weight,
+            ),
             ("base_acceleration_weight", self.base_acceleration_weight),
             ("pass_distance", self.pass_distance),
             ("event_range_fraction", self.event_range_fraction),
@@ -165,7 +168,10 @@ impl PlanningConfig {
             ("max_gripper_acceleration", self.max_gripper_acceleration),
             ("heading_tolerance", self.heading_tolerance),
             ("heading_trust_region", self.heading_trust_region),
-            ("tracking.max_gripper_speed", self.tracking.max_gripper_speed),
+            (
+                "tracking.max_gripper_speed",
+                self.tracking.max_gripper_speed,
+            ),
             (
                 "tracking.max_gripper_angular_speed",
                 self.tracking.max_gripper_angular_speed,
@@ -184,7 +190,10 @@ impl PlanningConfig {
             ("stop_duration", self.stop_duration),
             ("tracking.base_along_gain", self.tracking.base_along_gain),
             ("tracking.base_cross_gain", self.tracking.base_cross_gain),
-            ("tracking.base_heading_gain", self.tracking.base_heading_gain),
+            (
+                "tracking.base_heading_gain",
+                self.tracking.base_heading_gain,
+            ),
             (
                 "tracking.gripper_position_gain",
                 self.tracking.gripper_position_gain,
@@ -211,7 +220,10 @@ impl PlanningConfig {
             ));
         }
         if !self.tracking.gripper_yaw.is_finite() {
-            return Err(PlanningError::config("tracking.gripper_yaw", "must be finite"));
+            return Err(PlanningError::config(
+                "tracking.gripper_yaw",
+                "must be finite",
+            ));
         }
         if self.pass_distance < self.target_clearance {
             return Err(PlanningError::config(

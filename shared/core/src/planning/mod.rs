@@ -45,6 +45,9 @@ use crate::robot::Robot;
 use qp::{Layout, Linearisation, QpData, Schedule};
 use route::NominalRoute;
 
+/// Fraction of v_F below which a knot's heading does not count towards pass convergence.
+const CONVERGENCE_SPEED_FRACTION: f64 = 0.1;
+
 /// What to plan: where the robot starts and where the cube and the container are.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlanRequest {
@@ -200,10 +203,14 @@ pub fn plan(
             })
             .collect();
         let headings = plan::headings(&velocities, request.start_base.yaw);
+        // Headings near rest are ill-defined and move the mount little: only knots faster than
+        // CONVERGENCE_SPEED_FRACTION · v_F count towards convergence.
         let change = headings
             .iter()
             .zip(&about.heading)
-            .map(|(a, b)| crate::types::wrap_angle(a - b).abs())
+            .zip(&velocities)
+            .filter(|(_, v)| v.norm() >= CONVERGENCE_SPEED_FRACTION * request.base_speed)
+            .map(|((a, b), _)| crate::types::wrap_angle(a - b).abs())
             .fold(0.0, f64::max);
         let converged = change < config.heading_tolerance;
         if converged || passes >= config.max_passes {

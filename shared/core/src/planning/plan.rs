@@ -156,7 +156,11 @@ impl Plan {
     /// The plan at time `t` (clamped to [0, finish]): exact piecewise-quadratic evaluation.
     pub fn sample(&self, t: f64) -> PlanSample {
         let last = self.knots() - 1;
-        let t = if t.is_finite() { t.clamp(0.0, self.finish_time()) } else { 0.0 };
+        let t = if t.is_finite() {
+            t.clamp(0.0, self.finish_time())
+        } else {
+            0.0
+        };
         let k = ((t / self.knot_spacing).floor() as usize).min(last.saturating_sub(1));
         let tau = (t - self.knot_times[k]).clamp(0.0, self.knot_spacing);
         let (base_acc, gripper_acc) = if last == 0 {
@@ -165,13 +169,17 @@ impl Plan {
             (self.base_acceleration[k], self.gripper_acceleration[k])
         };
         let base_b = &self.base[k];
-        let base_position =
-            Vector2::new(base_b.x, base_b.y) + self.base_velocity[k] * tau + 0.5 * base_acc * tau * tau;
+        let base_position = Vector2::new(base_b.x, base_b.y)
+            + self.base_velocity[k] * tau
+            + 0.5 * base_acc * tau * tau;
         let base_velocity = self.base_velocity[k] + base_acc * tau;
         let speed = base_velocity.norm();
         let (yaw, omega) = if speed > HEADING_SPEED {
             let cross = base_velocity.x * base_acc.y - base_velocity.y * base_acc.x;
-            (base_velocity.y.atan2(base_velocity.x), cross / (speed * speed))
+            (
+                base_velocity.y.atan2(base_velocity.x),
+                cross / (speed * speed),
+            )
         } else {
             (base_b.yaw, 0.0)
         };
@@ -196,7 +204,10 @@ impl Plan {
         let min = |it: &mut dyn Iterator<Item = f64>| it.fold(f64::INFINITY, f64::min);
         let relative = |k: usize| {
             let mount = geometry.mount_position(&self.base[k]);
-            (self.gripper[k].xy() - mount, self.gripper[k].z - geometry.shoulder_height)
+            (
+                self.gripper[k].xy() - mount,
+                self.gripper[k].z - geometry.shoulder_height,
+            )
         };
         let heading = |k: usize| Vector2::new(self.base[k].yaw.cos(), self.base[k].yaw.sin());
         let n = self.knots();
@@ -205,7 +216,7 @@ impl Plan {
             max_base_speed: max(&mut self.base_velocity.iter().map(|v| v.norm())),
             max_base_acceleration: max(&mut self.base_acceleration.iter().map(|a| a.norm())),
             max_yaw_rate: max(
-                &mut (1..n).map(|k| wrap_angle(self.base[k].yaw - self.base[k - 1].yaw).abs() / h),
+                &mut (1..n).map(|k| wrap_angle(self.base[k].yaw - self.base[k - 1].yaw).abs() / h)
             ),
             min_forward_speed: min(&mut (0..n).map(|k| heading(k).dot(&self.base_velocity[k]))),
             max_horizontal_reach: max(&mut (0..n).map(|k| relative(k).0.norm())),

@@ -190,9 +190,8 @@ impl ConeRows {
     fn push_cone(&mut self, cone: SupportedConeT<f64>) {
         use SupportedConeT::{NonnegativeConeT, ZeroConeT};
         match (self.cones.last_mut(), &cone) {
-            (Some(ZeroConeT(n)), ZeroConeT(m)) | (Some(NonnegativeConeT(n)), NonnegativeConeT(m)) => {
-                *n += *m
-            }
+            (Some(ZeroConeT(n)), ZeroConeT(m))
+            | (Some(NonnegativeConeT(n)), NonnegativeConeT(m)) => *n += *m,
             _ => self.cones.push(cone),
         }
     }
@@ -264,7 +263,10 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
     for axis in 0..2 {
         let start = [request.start_base.x, request.start_base.y][axis];
         rows.equal(&[(layout.base_position(0, axis), 1.0)], start);
-        rows.equal(&[(layout.base_velocity(0, axis), 1.0)], start_velocity[axis]);
+        rows.equal(
+            &[(layout.base_velocity(0, axis), 1.0)],
+            start_velocity[axis],
+        );
     }
     for axis in 0..3 {
         let velocity = if axis < 2 { start_velocity[axis] } else { 0.0 };
@@ -296,10 +298,7 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
             ]
         });
         for [p0, p1, v0, v1, acc] in base.chain(gripper) {
-            rows.equal(
-                &[(p1, 1.0), (p0, -1.0), (v0, -h), (acc, -0.5 * h * h)],
-                0.0,
-            );
+            rows.equal(&[(p1, 1.0), (p0, -1.0), (v0, -h), (acc, -0.5 * h * h)], 0.0);
             rows.equal(&[(v1, 1.0), (v0, -1.0), (acc, -h)], 0.0);
         }
     }
@@ -384,8 +383,14 @@ pub(crate) fn solve(data: &QpData, about: &Linearisation) -> Result<QpSolution, 
         for sign in [1.0, -1.0] {
             rows.at_most(
                 &[
-                    (layout.base_velocity(k, 0), sign * lateral.x - slope * heading.x),
-                    (layout.base_velocity(k, 1), sign * lateral.y - slope * heading.y),
+                    (
+                        layout.base_velocity(k, 0),
+                        sign * lateral.x - slope * heading.x,
+                    ),
+                    (
+                        layout.base_velocity(k, 1),
+                        sign * lateral.y - slope * heading.y,
+                    ),
                 ],
                 0.0,
             );

@@ -85,8 +85,13 @@ impl NominalRoute {
         } else {
             request.start_base.yaw
         };
-        let pass_container =
-            tangent_point(pass_cube, container, config.pass_distance, None, incoming_heading);
+        let pass_container = tangent_point(
+            pass_cube,
+            container,
+            config.pass_distance,
+            None,
+            incoming_heading,
+        );
         let last_leg = pass_container - pass_cube;
         let direction = if last_leg.norm() > 1e-9 {
             last_leg.normalize()

@@ -62,24 +62,23 @@ fn exp1_plan_meets_its_constraints_at_every_knot() {
         plan.status,
     );
     eprintln!("{report:#?}");
-    assert!(plan.knot_times.iter().all(|t| t.is_finite()));
+    assert!(plan.converged, "the heading linearisation settles");
+    assert_eq!(plan.status, SolveStatus::Solved);
     assert!(report.max_base_speed <= request.base_speed + SOLVER_TOLERANCE);
     assert!(report.max_base_acceleration <= geometry.base_acceleration + SOLVER_TOLERANCE);
     assert!(report.max_gripper_speed <= config.max_gripper_speed + SOLVER_TOLERANCE);
-    assert!(
-        report.max_gripper_acceleration <= config.max_gripper_acceleration + SOLVER_TOLERANCE
-    );
+    assert!(report.max_gripper_acceleration <= config.max_gripper_acceleration + SOLVER_TOLERANCE);
     assert!(report.min_gripper_height >= config.min_gripper_height - SOLVER_TOLERANCE);
     // The clearance half-spaces are conservative: the true distance holds exactly.
     assert!(report.min_target_clearance >= config.target_clearance - SOLVER_TOLERANCE);
     // Heading-dependent constraints, measured with the true heading.
-    assert!(
-        report.max_horizontal_reach
-            <= geometry.manipulation_range + LINEARISATION_TOLERANCE
-    );
+    assert!(report.max_horizontal_reach <= geometry.manipulation_range + LINEARISATION_TOLERANCE);
     assert!(report.max_reach <= config.max_reach + LINEARISATION_TOLERANCE);
     assert!(report.min_forward_reach >= config.min_forward_reach - LINEARISATION_TOLERANCE);
-    assert!(report.min_forward_speed >= -SOLVER_TOLERANCE, "the base never reverses");
+    assert!(
+        report.min_forward_speed >= -SOLVER_TOLERANCE,
+        "the base never reverses"
+    );
     assert!(
         report.max_yaw_rate <= 1.05 * config.max_yaw_rate.min(geometry.yaw_rate_limit),
         "yaw rate {} above the planned limit {}",
@@ -126,18 +125,17 @@ fn exp1_plan_holds_the_grasp_and_drop_positions_at_their_knots() {
     assert!(plan.grasp_end_time() - plan.grasp_time() >= config.grasp_dwell - 1e-9);
     assert!(plan.drop_end_time() - plan.drop_time() >= config.drop_dwell - 1e-9);
     // Approach from above and lift.
-    let approach = plan.grasp_knot
-        - (config.approach_time / config.knot_spacing - 1e-9).ceil() as usize;
+    let approach =
+        plan.grasp_knot - (config.approach_time / config.knot_spacing - 1e-9).ceil() as usize;
     assert!(plan.gripper[approach].z >= request.cube.z + config.approach_height - 1e-6);
     for k in approach..plan.grasp_knot {
         assert!(plan.gripper[k].z >= request.cube.z - 1e-6);
     }
     // Before the grasp, the base could not have reached the cube faster at v_F.
     let geometry = RobotGeometry::from_robot(frankie());
-    let lower_bound = (request.cube.xy().norm()
-        - geometry.manipulation_range
-        - geometry.mount_offset.norm())
-        / request.base_speed;
+    let lower_bound =
+        (request.cube.xy().norm() - geometry.manipulation_range - geometry.mount_offset.norm())
+            / request.base_speed;
     assert!(plan.grasp_time() >= lower_bound);
     assert!(plan.drop_time() > plan.grasp_end_time());
 }
@@ -151,7 +149,8 @@ fn exp1_tracking_an_ideal_robot_follows_the_plan() {
     // Start 5 cm off to the side: the tracker must pull the base back onto the plan.
     let mut base = BasePose::new(0.0, 0.05, 0.0);
     let start = robot.tool_pose(&base, &robot.config.ready_pose);
-    let mut tool = Isometry3::from_parts(Translation3::from(start.translation.vector), start.rotation);
+    let mut tool =
+        Isometry3::from_parts(Translation3::from(start.translation.vector), start.rotation);
     let dt = 0.01;
     let steps = (plan.finish_time() / dt).ceil() as usize + 10;
     let mut worst_gripper_error_at_grasp: f64 = 0.0;
@@ -334,18 +333,4 @@ fn config_reads_from_toml_and_rejects_unknown_keys() {
     assert_eq!(config.tracking.gripper_position_gain, 3.0);
     assert_eq!(config.max_passes, PlanningConfig::default().max_passes);
     assert!(toml::from_str::<PlanningConfig>("knot_spcing = 0.05").is_err());
-}
-
-#[test]
-#[ignore]
-fn debug_dump() {
-    let plan = exp1_plan();
-    for k in 0..plan.knots() {
-        let b = plan.base[k];
-        eprintln!(
-            "{:5.1} base ({:6.3},{:6.3},{:7.4}) v {:6.4} g ({:6.3},{:6.3},{:6.3}) |vg| {:6.3}",
-            plan.knot_times[k], b.x, b.y, b.yaw, plan.base_velocity[k].norm(),
-            plan.gripper[k].x, plan.gripper[k].y, plan.gripper[k].z, plan.gripper_velocity[k].norm()
-        );
-    }
 }
