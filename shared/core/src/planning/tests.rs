@@ -145,7 +145,7 @@ fn exp1_tracking_an_ideal_robot_follows_the_plan() {
     let robot = frankie();
     let config = PlanningConfig::default();
     let controller = PlanningController::new(exp1_plan().clone(), robot, &config.tracking);
-    let plan = controller.plan_ref();
+    let plan = controller.plan();
     // Start 5 cm off to the side: the tracker must pull the base back onto the plan.
     let mut base = BasePose::new(0.0, 0.05, 0.0);
     let start = robot.tool_pose(&base, &robot.config.ready_pose);

@@ -71,7 +71,7 @@ impl PlanningController {
     }
 
     /// Plans for `request` (see [`super::plan`]) and returns the controller that tracks it.
-    pub fn plan(
+    pub fn from_request(
         robot: &Robot,
         request: &PlanRequest,
         config: &PlanningConfig,
@@ -81,7 +81,7 @@ impl PlanningController {
     }
 
     /// The plan being tracked.
-    pub fn plan_ref(&self) -> &Plan {
+    pub fn plan(&self) -> &Plan {
         &self.plan
     }
 
