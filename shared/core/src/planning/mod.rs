@@ -2,7 +2,7 @@
 //! the plan open-loop.
 //!
 //! **Planning.** One minimum-acceleration trajectory for the base and the gripper together,
-//! solved as one conic QP with clarabel over time knots (see [`qp`](self) for the formulation):
+//! solved as one conic QP with clarabel over time knots (formulation in `planning/qp.rs`):
 //! initial state; gripper position and zero velocity at the fixed grasp and drop times (held
 //! while the fingers close or open); base and gripper at rest at the finish time; base forward
 //! speed ≤ v_F; gripper within the manipulation range of the arm mount and within the arm's
