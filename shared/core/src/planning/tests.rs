@@ -62,29 +62,7 @@ fn exp1_plan_meets_its_constraints_at_every_knot() {
         plan.status,
     );
     eprintln!("{report:#?}");
-    assert!(plan.converged, "the heading linearisation settles");
-    assert_eq!(plan.status, SolveStatus::Solved);
-    assert!(report.max_base_speed <= request.base_speed + SOLVER_TOLERANCE);
-    assert!(report.max_base_acceleration <= geometry.base_acceleration + SOLVER_TOLERANCE);
-    assert!(report.max_gripper_speed <= config.max_gripper_speed + SOLVER_TOLERANCE);
-    assert!(report.max_gripper_acceleration <= config.max_gripper_acceleration + SOLVER_TOLERANCE);
-    assert!(report.min_gripper_height >= config.min_gripper_height - SOLVER_TOLERANCE);
-    // The clearance half-spaces are conservative: the true distance holds exactly.
-    assert!(report.min_target_clearance >= config.target_clearance - SOLVER_TOLERANCE);
-    // Heading-dependent constraints, measured with the true heading.
-    assert!(report.max_horizontal_reach <= geometry.manipulation_range + LINEARISATION_TOLERANCE);
-    assert!(report.max_reach <= config.max_reach + LINEARISATION_TOLERANCE);
-    assert!(report.min_forward_reach >= config.min_forward_reach - LINEARISATION_TOLERANCE);
-    assert!(
-        report.min_forward_speed >= -SOLVER_TOLERANCE,
-        "the base never reverses"
-    );
-    assert!(
-        report.max_yaw_rate <= 1.05 * config.max_yaw_rate.min(geometry.yaw_rate_limit),
-        "yaw rate {} above the planned limit {}",
-        report.max_yaw_rate,
-        config.max_yaw_rate
-    );
+    assert_meets_constraints(plan, &request, &config);
 }
 
 #[test]
@@ -333,4 +311,51 @@ fn config_reads_from_toml_and_rejects_unknown_keys() {
     assert_eq!(config.tracking.gripper_position_gain, 3.0);
     assert_eq!(config.max_passes, PlanningConfig::default().max_passes);
     assert!(toml::from_str::<PlanningConfig>("knot_spcing = 0.05").is_err());
+}
+
+/// Asserts that `plan` meets every constraint of `config` at every knot, measured with the true
+/// base heading.
+fn assert_meets_constraints(plan: &Plan, request: &PlanRequest, config: &PlanningConfig) {
+    let geometry = RobotGeometry::from_robot(frankie());
+    let report = plan.constraint_report(&geometry, &targets(request));
+    assert!(plan.converged, "the heading linearisation settles");
+    assert_eq!(plan.status, SolveStatus::Solved);
+    assert!(report.max_base_speed <= request.base_speed + SOLVER_TOLERANCE);
+    assert!(report.max_base_acceleration <= geometry.base_acceleration + SOLVER_TOLERANCE);
+    assert!(report.max_gripper_speed <= config.max_gripper_speed + SOLVER_TOLERANCE);
+    assert!(report.max_gripper_acceleration <= config.max_gripper_acceleration + SOLVER_TOLERANCE);
+    assert!(report.min_gripper_height >= config.min_gripper_height - SOLVER_TOLERANCE);
+    // The clearance half-spaces are conservative: the true distance holds exactly.
+    assert!(report.min_target_clearance >= config.target_clearance - SOLVER_TOLERANCE);
+    // Heading-dependent constraints, measured with the true heading.
+    assert!(report.max_horizontal_reach <= geometry.manipulation_range + LINEARISATION_TOLERANCE);
+    assert!(report.max_reach <= config.max_reach + LINEARISATION_TOLERANCE);
+    assert!(report.min_forward_reach >= config.min_forward_reach - LINEARISATION_TOLERANCE);
+    assert!(
+        report.min_forward_speed >= -SOLVER_TOLERANCE,
+        "the base never reverses"
+    );
+    assert!(
+        report.max_yaw_rate <= 1.05 * config.max_yaw_rate.min(geometry.yaw_rate_limit),
+        "yaw rate {} above the planned limit {}",
+        report.max_yaw_rate,
+        config.max_yaw_rate
+    );
+}
+
+#[test]
+fn mirrored_layout_with_a_turned_start_also_meets_its_constraints() {
+    let request = PlanRequest {
+        start_base: BasePose::new(0.5, 0.2, -0.3),
+        start_base_speed: 0.1,
+        cube: Vector3::new(2.4, -0.8, 0.45),
+        container: Vector3::new(4.0, -1.8, 0.35),
+        base_speed: 0.4,
+    };
+    let config = PlanningConfig::default();
+    let plan = plan(frankie(), &request, &config).unwrap();
+    assert_meets_constraints(&plan, &request, &config);
+    assert!((plan.gripper[plan.grasp_knot] - request.cube).norm() < 1e-6);
+    let drop = request.container + Vector3::z() * config.drop_height;
+    assert!((plan.gripper[plan.drop_knot] - drop).norm() < 1e-6);
 }
