@@ -10,6 +10,7 @@
 //! - [`input_check`]: refusing non-finite controller input.
 //! - [`on_the_move`]: the four MotM modules and the QP composed into one control step.
 //! - [`mission`]: which target is current, which is next, which phase is active.
+//! - [`planning`]: the planning baseline (plan once with a QP, then track open-loop).
 //! - [`quintic`]: quintic trajectories with full boundary conditions.
 //! - [`reach_range`]: manipulation range derived from the model.
 //! - [`reacher`]: transit-time trigger and quintic reach toward the predicted object.
@@ -30,6 +31,7 @@ pub mod input_check;
 pub mod kinematics;
 pub mod mission;
 pub mod on_the_move;
+pub mod planning;
 pub mod qp_scenario;
 pub mod quintic;
 pub mod reach_range;
