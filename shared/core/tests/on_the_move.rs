@@ -194,7 +194,7 @@ fn picks_a_static_cube_on_the_move_and_drops_it_into_the_container() {
         Vector3::new(3.6, 1.6, 0.35),
     );
     check(&run);
-    assert!(run.time < 25.0, "took {:.1} s", run.time);
+    assert!(run.time < 15.0, "took {:.1} s", run.time);
 }
 
 #[test]
