@@ -8,7 +8,8 @@
 //!   it to the middle as they close;
 //! - height: the cube overlaps the finger pads by at least `min_height_overlap` along tool z,
 //!   and does not reach into the palm;
-//! - yaw: the cube's faces turned from the closing direction by at most `yaw_tolerance`.
+//! - yaw: the cube's faces turned from the closing direction by at most `yaw_tolerance`; the
+//!   squeeze turns it square to the fingers, which close on its edge length.
 //!
 //! A gripper part that overlaps a free cube outside this window (a finger landing on it, a finger
 //! or the palm sweeping into it) knocks the cube off its platform.
@@ -28,8 +29,10 @@ pub struct GraspConfig {
     pub lateral_tolerance: f64,
     /// Least overlap between the cube and the finger pads along the approach (tool z), m.
     pub min_height_overlap: f64,
-    /// Largest yaw between the cube's faces and the closing direction, rad (about 20°: beyond it
-    /// the fingers meet the cube's edges and it slips out).
+    /// Largest yaw between the cube's faces and the closing direction, rad. Parallel jaws that
+    /// squeeze a square turn it to the nearest face-to-face orientation (Goldberg's squeeze
+    /// function) from anywhere short of 45°; pad and platform friction resist the turn near 45°,
+    /// so 0.6 rad (about 34°) is chosen.
     pub yaw_tolerance: f64,
     /// A closure that starts with a free cube centre within this distance of the tool point and
     /// ends empty is a missed grasp, m. Closures far from any cube (e.g. to press a button with
@@ -44,7 +47,7 @@ impl Default for GraspConfig {
         Self {
             lateral_tolerance: 0.015,
             min_height_overlap: 0.012,
-            yaw_tolerance: 0.35,
+            yaw_tolerance: 0.6,
             attempt_distance: 0.05,
             release_clearance: 0.002,
         }
@@ -116,12 +119,6 @@ pub fn check_window(
         return Err(GraspMiss::Yaw);
     }
     Ok(())
-}
-
-/// Width of a cube of edge `cube_size` across the closing direction at yaw misalignment `yaw`:
-/// the opening at which the fingers touch both sides.
-pub fn grip_width(cube_size: f64, yaw: f64) -> f64 {
-    cube_size * (yaw.cos().abs() + yaw.sin().abs())
 }
 
 /// Which part of the gripper overlaps a cube.
@@ -213,7 +210,7 @@ mod tests {
         // Tool point 4 cm below the cube centre: the cube is in the palm.
         let low = top_down(centre - Vector3::new(0.0, 0.0, 0.04), 0.0);
         assert_eq!(window(&low, &cube), Err(GraspMiss::Height));
-        let turned = top_down(centre, 0.5);
+        let turned = top_down(centre, 0.7);
         assert_eq!(window(&turned, &cube), Err(GraspMiss::Yaw));
         // A quarter turn is symmetric for a cube.
         let quarter = top_down(centre, std::f64::consts::FRAC_PI_2 + 0.1);
@@ -230,11 +227,5 @@ mod tests {
         assert_eq!(contact(&config, &tool, 0.029, &cube_box), Contact::Finger);
         let too_low = top_down(centre - Vector3::new(0.0, 0.0, 0.05), 0.0);
         assert_eq!(contact(&config, &too_low, 0.08, &cube_box), Contact::Palm);
-    }
-
-    #[test]
-    fn grip_width_grows_with_misalignment() {
-        assert!((grip_width(0.03, 0.0) - 0.03).abs() < 1e-15);
-        assert!(grip_width(0.03, 0.3) > 0.03 * 1.2);
     }
 }

@@ -196,7 +196,14 @@ impl Layout {
             .iter()
             .map(|o| {
                 let [x, y, z] = o.position;
-                OrientedBox::upright(x, y, 0.0, half_platform, half_platform, z - half_cube)
+                OrientedBox::upright(
+                    x,
+                    y,
+                    0.0,
+                    half_platform,
+                    half_platform,
+                    (z - half_cube).max(0.0),
+                )
             })
             .collect();
         let half_pedestal = 0.5 * config.button_pedestal_size;

@@ -581,8 +581,8 @@ impl World {
             if in_window.is_err() || cube.state != ObjectState::OnPlatform {
                 closure.candidate = None;
             } else {
-                let width =
-                    grasp::grip_width(self.config.objects.cube_size, relative.yaw_misalignment);
+                // The squeeze turns the cube square to the fingers, which stop at its edge length.
+                let width = self.config.objects.cube_size;
                 if opening <= width {
                     self.gripper.opening = width;
                     let aligned = UnitQuaternion::from_axis_angle(

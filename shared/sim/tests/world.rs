@@ -570,3 +570,57 @@ fn malformed_commands_are_dropped_and_counted() {
     assert!(world.truth().arm_q.iter().all(|q| q.is_finite()));
     assert_eq!(world.truth().arm_q, robot.config.ready_pose);
 }
+
+#[test]
+fn the_squeeze_aligns_a_turned_cube_up_to_the_yaw_tolerance() {
+    let robot = frankie();
+    for (turn, held) in [(0.4, true), (0.75, false)] {
+        let mut world = World::new(&robot, &bench_scene(Vector3::zeros()), 1);
+        let cube = world.truth().objects[0].position();
+        let mut orientation = ready_tool(&robot);
+        orientation.rotation =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn) * orientation.rotation;
+        servo(
+            &mut world,
+            &robot,
+            cube + Vector3::new(0.0, 0.0, 0.1),
+            &orientation,
+            GripperCommand::Open,
+            2.0,
+        );
+        servo(
+            &mut world,
+            &robot,
+            cube,
+            &orientation,
+            GripperCommand::Open,
+            1.5,
+        );
+        servo(
+            &mut world,
+            &robot,
+            cube,
+            &orientation,
+            GripperCommand::Close,
+            0.8,
+        );
+        assert_eq!(
+            world.truth().held_object.is_some(),
+            held,
+            "turned by {turn} rad"
+        );
+        if held {
+            // Held square to the fingers: the cube turned with the squeeze.
+            let in_tool =
+                world.truth().tool_pose.rotation.inverse() * world.truth().objects[0].pose.rotation;
+            let x = in_tool * Vector3::x();
+            assert!(x.x.abs() < 1e-6 || x.y.abs() < 1e-6, "not square: {x}");
+        } else {
+            // Outside the window, the closing fingers meet the cube's edges and flick it away.
+            assert_eq!(
+                world.outcome(),
+                Some(Outcome::Failure(FailureReason::KnockedOff))
+            );
+        }
+    }
+}
