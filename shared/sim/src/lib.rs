@@ -5,4 +5,14 @@
 //! renders real images. Every random draw comes from a seeded RNG, so a scenario and a seed give
 //! the same result bit for bit.
 pub mod experiment;
+pub mod geometry;
+pub mod grasp;
+pub mod gripper;
 pub mod metrics;
+pub mod objects;
+pub mod random;
+pub mod scenario;
+pub mod world;
+
+pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject};
+pub use world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World, WorldConfig};
