@@ -6,3 +6,4 @@
 //! the same result bit for bit.
 pub mod experiment;
 pub mod metrics;
+pub mod render;
