@@ -102,7 +102,12 @@ impl CameraConfig {
             return bad("field_of_view", "must be in (0, 2π] rad");
         }
         let mount = self.tool_from_camera;
-        if !mount.xyz.iter().chain(mount.rpy.iter()).all(|v| v.is_finite()) {
+        if !mount
+            .xyz
+            .iter()
+            .chain(mount.rpy.iter())
+            .all(|v| v.is_finite())
+        {
             return bad("tool_from_camera", "xyz and rpy must be finite");
         }
         if !(self.pixel_noise_std.is_finite() && self.pixel_noise_std >= 0.0) {
@@ -338,9 +343,10 @@ mod tests {
 
     #[test]
     fn config_parses_from_toml_and_rejects_unknown_keys() {
-        let config: CameraConfig =
-            toml::from_str("width = 160\nheight = 120\ntool_from_camera = { xyz = [0, 0, 0.1], rpy = [0, 0, 0] }")
-                .unwrap();
+        let config: CameraConfig = toml::from_str(
+            "width = 160\nheight = 120\ntool_from_camera = { xyz = [0, 0, 0.1], rpy = [0, 0, 0] }",
+        )
+        .unwrap();
         assert_eq!(config.width, 160);
         assert_eq!(config.tool_from_camera.xyz[2], 0.1);
         assert_eq!(config.latency, CameraConfig::default().latency);

@@ -199,18 +199,28 @@ impl Perception {
             && input.stamp.is_finite()
             && input.object_height.is_finite()
             && isometry_is_finite(&input.tool_pose)
-            && input.target_hint.is_none_or(|h| h.iter().all(|v| v.is_finite()));
+            && input
+                .target_hint
+                .is_none_or(|h| h.iter().all(|v| v.is_finite()));
         if !usable || self.threshold(input.image) < self.config.min_pixels {
             return None;
         }
         self.label_blobs(input.width as usize, input.height as usize);
         let prior = if self.estimate.valid {
-            Some(self.estimate.target().predict(input.stamp - self.estimate.stamp))
+            Some(
+                self.estimate
+                    .target()
+                    .predict(input.stamp - self.estimate.stamp),
+            )
         } else {
             input.target_hint
         };
         let mut best: Option<(f64, Vector3<f64>)> = None;
-        for blob in self.blobs.iter().filter(|b| b.pixels >= self.config.min_pixels) {
+        for blob in self
+            .blobs
+            .iter()
+            .filter(|b| b.pixels >= self.config.min_pixels)
+        {
             let Some(fix) = self.intersect(blob.centroid(), &input.tool_pose, input.object_height)
             else {
                 continue;
@@ -404,7 +414,10 @@ mod tests {
         let estimate = perception.step(&input(&image, 0.0));
         assert!(estimate.visible && estimate.valid);
         let expected = 0.5 * (0.5 / calibration().model.fx);
-        assert!((estimate.position.x.abs() - expected).abs() < 1e-4, "{estimate:?}");
+        assert!(
+            (estimate.position.x.abs() - expected).abs() < 1e-4,
+            "{estimate:?}"
+        );
         assert!(estimate.position.z.abs() < 1e-12);
     }
 
@@ -457,7 +470,13 @@ mod tests {
         bad.image = &image[3..];
         let estimate = perception.step(&bad);
         assert!(!estimate.visible && !estimate.valid);
-        assert!(estimate.position.iter().chain(estimate.velocity.iter()).all(|v| v.is_finite()));
+        assert!(
+            estimate
+                .position
+                .iter()
+                .chain(estimate.velocity.iter())
+                .all(|v| v.is_finite())
+        );
         // The plane above the camera is never hit by a downward ray.
         let mut above = input(&image, 0.0);
         above.object_height = 1.0;

@@ -17,9 +17,23 @@ use rand_chacha::ChaCha8Rng;
 fn setup() -> (CameraConfig, Scene, Isometry3<f64>) {
     let config = CameraConfig::default();
     let mut scene = Scene::default();
-    scene.boxes.push(SceneBox::platform(Vector3::new(0.0, 0.0, 0.42), 1.2, 0.8, PLATFORM_WOOD));
-    scene.add_container(Vector3::new(0.0, 1.0, 0.35), 0.3, 0.4, 0.3, 0.01, CONTAINER_BLUE);
-    scene.boxes.push(SceneBox::cube(Vector3::new(0.1, 0.05, 0.435), 0.3, 0.03));
+    scene.boxes.push(SceneBox::platform(
+        Vector3::new(0.0, 0.0, 0.42),
+        1.2,
+        0.8,
+        PLATFORM_WOOD,
+    ));
+    scene.add_container(
+        Vector3::new(0.0, 1.0, 0.35),
+        0.3,
+        0.4,
+        0.3,
+        0.01,
+        CONTAINER_BLUE,
+    );
+    scene
+        .boxes
+        .push(SceneBox::cube(Vector3::new(0.1, 0.05, 0.435), 0.3, 0.03));
     let world_from_camera = Isometry3::from_parts(
         Translation3::new(0.0, 0.0, 0.935),
         UnitQuaternion::from_euler_angles(std::f64::consts::PI + 0.2, 0.0, 0.0),
@@ -40,6 +54,23 @@ fn percentiles(name: &str, mut samples: Vec<Duration>) {
     );
 }
 
+/// Perception's input for `image` taken at `tool_pose`, stamped 0.
+fn frame_input<'a>(
+    config: &CameraConfig,
+    tool_pose: &Isometry3<f64>,
+    image: &'a [u8],
+) -> PerceptionInput<'a> {
+    PerceptionInput {
+        image,
+        width: config.width,
+        height: config.height,
+        stamp: 0.0,
+        tool_pose: *tool_pose,
+        object_height: 0.435,
+        target_hint: None,
+    }
+}
+
 fn palm_camera(c: &mut Criterion) {
     let (config, scene, tool_pose) = setup();
     let world_from_camera = tool_pose * config.tool_from_camera.isometry();
@@ -47,23 +78,19 @@ fn palm_camera(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let mut perception = Perception::new(PerceptionConfig::default(), config.calibration());
     let mut image = renderer.render(&scene, &world_from_camera, &mut rng);
-    let input = |image| PerceptionInput {
-        image,
-        width: config.width,
-        height: config.height,
-        stamp: 0.0,
-        tool_pose,
-        object_height: 0.435,
-        target_hint: None,
-    };
-    assert!(perception.step(&input(&image)).visible, "the bench scene shows the cube");
+    assert!(
+        perception
+            .step(&frame_input(&config, &tool_pose, &image))
+            .visible,
+        "the bench scene shows the cube"
+    );
 
     let (mut render_times, mut perceive_times) = (Vec::new(), Vec::new());
     for k in 0..500 {
         let start = Instant::now();
         renderer.render_into(&scene, &world_from_camera, &mut rng, &mut image);
         render_times.push(start.elapsed());
-        let mut frame = input(&image);
+        let mut frame = frame_input(&config, &tool_pose, &image);
         frame.stamp = k as f64 / 30.0;
         let start = Instant::now();
         black_box(perception.step(&frame));
@@ -81,7 +108,7 @@ fn palm_camera(c: &mut Criterion) {
     c.bench_function("perception 320x240", |b| {
         b.iter(|| {
             stamp += 1.0 / 30.0;
-            let mut frame = input(&image);
+            let mut frame = frame_input(&config, &tool_pose, &image);
             frame.stamp = stamp;
             black_box(perception.step(black_box(&frame)))
         })

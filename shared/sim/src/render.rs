@@ -21,15 +21,11 @@ pub const CUBE_RED: [u8; 3] = [210, 28, 24];
 pub const PLATFORM_WOOD: [u8; 3] = [168, 160, 146];
 /// Colour of the container: blue plastic.
 pub const CONTAINER_BLUE: [u8; 3] = [40, 80, 170];
-/// Colour of the floor (alternating with a slightly darker shade in 0.5 m squares).
+/// Colour of the floor.
 pub const FLOOR_GREY: [u8; 3] = [120, 120, 116];
 /// Colour seen where a ray hits nothing (walls and ceiling far away).
 pub const BACKGROUND: [u8; 3] = [196, 204, 214];
 
-/// Side of the floor's checker squares, m.
-const FLOOR_SQUARE: f32 = 0.5;
-/// Brightness of the darker floor squares relative to [`FLOOR_GREY`].
-const FLOOR_DARK: f32 = 0.85;
 /// Ambient share of the lighting; the directional light adds up to `1 − AMBIENT`.
 const AMBIENT: f32 = 0.55;
 /// Side of the square pixel tiles used to cull boxes, pixels.
@@ -150,7 +146,7 @@ struct PreparedBox {
     camera_in_box: Vector3<f32>,
     half: Vector3<f32>,
     /// Lit colour of the faces −x, +x, −y, +y, −z, +z.
-    faces: [[f32; 3]; 6],
+    faces: [[u8; 3]; 6],
 }
 
 impl PreparedBox {
@@ -195,7 +191,9 @@ impl Renderer {
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
             .map(|i| {
                 let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
-                model.unproject(&pixel).map(|r| r.into_inner().cast::<f32>())
+                model
+                    .unproject(&pixel)
+                    .map(|r| r.into_inner().cast::<f32>())
             })
             .collect();
         let mut tiles = Vec::new();
@@ -264,12 +262,16 @@ impl Renderer {
         image: &mut [u8],
     ) {
         let w = self.model.width as usize;
-        assert_eq!(image.len(), w * self.model.height as usize * 3, "image size");
+        assert_eq!(
+            image.len(),
+            w * self.model.height as usize * 3,
+            "image size"
+        );
         image.fill(0);
         let light = Vector3::new(0.3, -0.2, 1.0).normalize();
         let lit = |colour: [u8; 3], normal: Vector3<f64>| {
             let shade = AMBIENT + (1.0 - AMBIENT) * (normal.dot(&light) as f32).max(0.0);
-            colour.map(|c| c as f32 * shade)
+            colour.map(|c| (c as f32 * shade).round() as u8)
         };
         let camera_from_world = world_from_camera.inverse();
         let boxes: Vec<PreparedBox> = scene
@@ -279,13 +281,17 @@ impl Renderer {
                 let box_from_camera = b.pose.inverse() * world_from_camera;
                 let r = b.pose.rotation;
                 let axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
-                let mut faces = [[0.0; 3]; 6];
+                let mut faces = [[0u8; 3]; 6];
                 for (axis, a) in axes.iter().enumerate() {
                     faces[2 * axis] = lit(b.colour, -a);
                     faces[2 * axis + 1] = lit(b.colour, *a);
                 }
                 PreparedBox {
-                    box_from_camera: box_from_camera.rotation.to_rotation_matrix().matrix().cast(),
+                    box_from_camera: box_from_camera
+                        .rotation
+                        .to_rotation_matrix()
+                        .matrix()
+                        .cast(),
                     camera_in_box: box_from_camera.translation.vector.cast(),
                     half: (0.5 * b.size).cast(),
                     faces,
@@ -307,11 +313,8 @@ impl Renderer {
             .collect();
         let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
         let camera_height = world_from_camera.translation.z as f32;
-        let world_rotation = world_from_camera.rotation.to_rotation_matrix().matrix().cast::<f32>();
-        let camera_xy = world_from_camera.translation.vector.xy().cast::<f32>();
         let floor = lit(scene.floor_colour, Vector3::z());
-        let floor_dark = floor.map(|c| c * FLOOR_DARK);
-        let background = scene.background.map(|c| c as f32);
+        let background = scene.background;
         let mut candidates = Vec::with_capacity(boxes.len());
         let mut noise = self.noise.stream(rng);
         for tile in &self.tiles {
@@ -334,13 +337,7 @@ impl Renderer {
                     let down = floor_normal.dot(ray);
                     if down < 0.0 && camera_height > 0.0 {
                         nearest = -camera_height / down;
-                        let hit = camera_xy + (world_rotation * ray).xy() * nearest;
-                        let square = (hit.x / FLOOR_SQUARE).floor() + (hit.y / FLOOR_SQUARE).floor();
-                        colour = if square.rem_euclid(2.0) < 1.0 {
-                            floor
-                        } else {
-                            floor_dark
-                        };
+                        colour = floor;
                     }
                     for &i in &candidates {
                         if let Some((t, face)) = boxes[i].hit(ray) {
@@ -352,7 +349,7 @@ impl Renderer {
                     }
                     let pixel = &mut image[index * 3..index * 3 + 3];
                     for (out, value) in pixel.iter_mut().zip(colour) {
-                        *out = (value + noise.next()).round().clamp(0.0, 255.0) as u8;
+                        *out = (value as i16 + noise.next()).clamp(0, 255) as u8;
                     }
                 }
             }
@@ -366,18 +363,22 @@ type Point = nalgebra::Point3<f64>;
 const NOISE_LEVELS: usize = 4096;
 
 /// Gaussian noise from a quantile table: each draw takes 12 random bits, so one `u64` gives five
-/// draws. The table holds the standard normal quantiles at (k + ½)/4096 times σ, so the draws
-/// are Gaussian to within the table's resolution (tails cut at ±3.7σ).
+/// draws. The table holds the standard normal quantiles at (k + ½)/4096 times σ, rounded to whole
+/// 8-bit levels (the image is integer anyway), so the draws are Gaussian to within the table's
+/// resolution (tails cut at ±3.7σ) then rounded.
 #[derive(Debug, Clone)]
 struct NoiseTable {
-    values: Vec<f32>,
+    values: Vec<i16>,
 }
 
 impl NoiseTable {
     fn new(std: f64) -> Self {
         let values = if std > 0.0 {
             (0..NOISE_LEVELS)
-                .map(|k| (std * normal_quantile((k as f64 + 0.5) / NOISE_LEVELS as f64)) as f32)
+                .map(|k| {
+                    let q = std * normal_quantile((k as f64 + 0.5) / NOISE_LEVELS as f64);
+                    q.round().clamp(-255.0, 255.0) as i16
+                })
                 .collect()
         } else {
             Vec::new()
@@ -397,7 +398,7 @@ impl NoiseTable {
 
 /// Draws from a [`NoiseTable`].
 struct NoiseStream<'a, R: ?Sized> {
-    table: &'a [f32],
+    table: &'a [i16],
     rng: &'a mut R,
     bits: u64,
     left: u32,
@@ -405,9 +406,9 @@ struct NoiseStream<'a, R: ?Sized> {
 
 impl<R: Rng + ?Sized> NoiseStream<'_, R> {
     #[inline]
-    fn next(&mut self) -> f32 {
+    fn next(&mut self) -> i16 {
         if self.table.is_empty() {
-            return 0.0;
+            return 0;
         }
         if self.left == 0 {
             self.bits = self.rng.next_u64();
@@ -531,7 +532,9 @@ impl PalmCamera {
     ) -> Option<CameraFrame> {
         if now >= self.next_capture {
             let world_from_camera = world_from_tool * self.config.tool_from_camera.isometry();
-            let image = self.renderer.render(scene, &world_from_camera, &mut self.rng);
+            let image = self
+                .renderer
+                .render(scene, &world_from_camera, &mut self.rng);
             self.in_flight.push_back(CameraFrame {
                 image,
                 width: self.config.width,
@@ -577,14 +580,16 @@ mod tests {
 
     #[test]
     fn noise_has_the_configured_spread() {
-        let table = NoiseTable::new(2.0);
+        let table = NoiseTable::new(3.0);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let mut stream = table.stream(&mut rng);
         let samples: Vec<f64> = (0..50_000).map(|_| stream.next() as f64).collect();
         let mean = samples.iter().sum::<f64>() / samples.len() as f64;
         let var = samples.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / samples.len() as f64;
         assert!(mean.abs() < 0.05, "mean {mean}");
-        assert!((var.sqrt() - 2.0).abs() < 0.05, "std {}", var.sqrt());
+        // Rounding to whole levels adds 1/12 to the variance.
+        let expected = (9.0_f64 + 1.0 / 12.0).sqrt();
+        assert!((var.sqrt() - expected).abs() < 0.05, "std {}", var.sqrt());
     }
 
     #[test]
@@ -593,13 +598,17 @@ mod tests {
             box_from_camera: Matrix3::identity(),
             camera_in_box: Vector3::new(0.0, 0.0, 1.0),
             half: Vector3::repeat(0.1),
-            faces: [[0.0; 3]; 6],
+            faces: [[0; 3]; 6],
         };
         let (t, face) = cube.hit(&Vector3::new(0.0, 0.0, -1.0)).unwrap();
         assert!((t - 0.9).abs() < 1e-6);
         assert_eq!(face, 5, "+z face");
         assert!(cube.hit(&Vector3::new(0.0, 0.0, 1.0)).is_none(), "behind");
-        assert!(cube.hit(&Vector3::new(1.0, 0.0, -1.0).normalize()).is_none(), "beside");
+        assert!(
+            cube.hit(&Vector3::new(1.0, 0.0, -1.0).normalize())
+                .is_none(),
+            "beside"
+        );
     }
 
     #[test]

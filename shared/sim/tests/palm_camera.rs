@@ -26,8 +26,17 @@ fn scene(x: f64, y: f64, yaw: f64) -> Scene {
         0.8,
         PLATFORM_WOOD,
     ));
-    scene.add_container(Vector3::new(0.0, 1.0, 0.35), 0.3, 0.4, 0.3, 0.01, CONTAINER_BLUE);
-    scene.boxes.push(SceneBox::cube(Vector3::new(x, y, CUBE_Z), yaw, EDGE));
+    scene.add_container(
+        Vector3::new(0.0, 1.0, 0.35),
+        0.3,
+        0.4,
+        0.3,
+        0.01,
+        CONTAINER_BLUE,
+    );
+    scene
+        .boxes
+        .push(SceneBox::cube(Vector3::new(x, y, CUBE_Z), yaw, EDGE));
     scene
 }
 
@@ -96,8 +105,19 @@ fn worst_error_at_half_a_metre(
             let camera = Vector3::new(0.0, 0.0, CUBE_Z + 0.5);
             let tool = tool_pose_for_camera(config, camera, tilt, 0.2 * i as f64);
             let mut perception = Perception::new(PerceptionConfig::default(), calibration);
-            let estimate = observe(&renderer, &mut perception, config, &scene, &tool, 0.0, &mut rng);
-            assert!(estimate.visible, "cube at ({dx}, {dy}), tilt {tilt}: not visible");
+            let estimate = observe(
+                &renderer,
+                &mut perception,
+                config,
+                &scene,
+                &tool,
+                0.0,
+                &mut rng,
+            );
+            assert!(
+                estimate.visible,
+                "cube at ({dx}, {dy}), tilt {tilt}: not visible"
+            );
             let error = (estimate.position - Vector3::new(dx, dy, CUBE_Z)).norm();
             worst = worst.max(error);
             checked += 1;
@@ -146,7 +166,15 @@ fn strong_pixel_noise_neither_hides_the_cube_nor_invents_one() {
     let tool = tool_pose_for_camera(&config, Vector3::new(0.0, 0.0, 0.9), 0.4, 0.0);
     let mut perception = Perception::new(PerceptionConfig::default(), config.calibration());
     for k in 0..5 {
-        let estimate = observe(&renderer, &mut perception, &config, &empty, &tool, k as f64, &mut rng);
+        let estimate = observe(
+            &renderer,
+            &mut perception,
+            &config,
+            &empty,
+            &tool,
+            k as f64,
+            &mut rng,
+        );
         assert!(!estimate.visible && !estimate.valid);
     }
 }
@@ -166,7 +194,15 @@ fn velocity_estimate_converges_for_a_moving_cube() {
         let camera = Vector3::new(-0.2 + 0.2 * t, 0.0, CUBE_Z + 0.5);
         let tool = tool_pose_for_camera(&config, camera, 0.0, 0.0);
         let scene = scene(cube.x, cube.y, 0.1);
-        let estimate = observe(&renderer, &mut perception, &config, &scene, &tool, t, &mut rng);
+        let estimate = observe(
+            &renderer,
+            &mut perception,
+            &config,
+            &scene,
+            &tool,
+            t,
+            &mut rng,
+        );
         assert!(estimate.visible);
         if t >= 1.0 {
             worst_after_settling = worst_after_settling.max((estimate.velocity - velocity).norm());
@@ -188,10 +224,21 @@ fn a_static_cube_seen_from_a_moving_camera_has_no_velocity() {
         let t = k as f64 / 30.0;
         let camera = Vector3::new(-0.3 + 0.3 * t, 0.1 * t, CUBE_Z + 0.45 + 0.05 * t);
         let tool = tool_pose_for_camera(&config, camera, -0.3 + 0.4 * t, 0.3 * t);
-        last = observe(&renderer, &mut perception, &config, &scene, &tool, t, &mut rng);
+        last = observe(
+            &renderer,
+            &mut perception,
+            &config,
+            &scene,
+            &tool,
+            t,
+            &mut rng,
+        );
         assert!(last.visible);
     }
-    println!("static cube, moving camera: velocity {:.5} m/s", last.velocity.norm());
+    println!(
+        "static cube, moving camera: velocity {:.5} m/s",
+        last.velocity.norm()
+    );
     assert!(last.velocity.norm() < 0.005, "{:?}", last.velocity);
 }
 
@@ -203,20 +250,52 @@ fn a_cube_out_of_view_is_not_visible_and_the_last_fix_is_held() {
     let mut perception = Perception::new(PerceptionConfig::default(), config.calibration());
     let scene = scene(0.0, 0.0, 0.0);
     let above = tool_pose_for_camera(&config, Vector3::new(0.0, 0.0, CUBE_Z + 0.5), 0.0, 0.0);
-    let seen = observe(&renderer, &mut perception, &config, &scene, &above, 0.0, &mut rng);
+    let seen = observe(
+        &renderer,
+        &mut perception,
+        &config,
+        &scene,
+        &above,
+        0.0,
+        &mut rng,
+    );
     assert!(seen.visible);
     // Looking up at the ceiling: the cube is behind the camera.
     let up = tool_pose_for_camera(&config, Vector3::new(0.0, 0.0, CUBE_Z + 0.5), PI, 0.0);
-    let lost = observe(&renderer, &mut perception, &config, &scene, &up, 0.1, &mut rng);
+    let lost = observe(
+        &renderer,
+        &mut perception,
+        &config,
+        &scene,
+        &up,
+        0.1,
+        &mut rng,
+    );
     assert!(!lost.visible && lost.valid);
     assert_eq!(lost.position, seen.position);
     assert_eq!(lost.stamp, 0.0);
     // Looking along the floor far away: the cube is below the edge of the field of view.
     let away = tool_pose_for_camera(&config, Vector3::new(3.0, 0.0, 1.0), PI / 2.0 + 0.1, 0.0);
-    let lost = observe(&renderer, &mut perception, &config, &scene, &away, 0.2, &mut rng);
+    let lost = observe(
+        &renderer,
+        &mut perception,
+        &config,
+        &scene,
+        &away,
+        0.2,
+        &mut rng,
+    );
     assert!(!lost.visible);
     // Back in view.
-    let again = observe(&renderer, &mut perception, &config, &scene, &above, 0.3, &mut rng);
+    let again = observe(
+        &renderer,
+        &mut perception,
+        &config,
+        &scene,
+        &above,
+        0.3,
+        &mut rng,
+    );
     assert!(again.visible && again.stamp == 0.3);
 }
 
@@ -233,10 +312,16 @@ fn the_cube_images_where_the_model_projects_it() {
     let world_from_camera = tool * config.tool_from_camera.isometry();
     let image = renderer.render(&scene, &world_from_camera, &mut rng);
     let centre = world_from_camera.inverse() * nalgebra::Point3::new(0.15, 0.1, CUBE_Z);
-    let pixel = config.model().project(&centre.coords).expect("cube in view");
+    let pixel = config
+        .model()
+        .project(&centre.coords)
+        .expect("cube in view");
     let index = (pixel.y.round() as usize * config.width as usize + pixel.x.round() as usize) * 3;
     let rgb = &image[index..index + 3];
-    assert!(PerceptionConfig::default().is_red(rgb[0], rgb[1], rgb[2]), "{rgb:?}");
+    assert!(
+        PerceptionConfig::default().is_red(rgb[0], rgb[1], rgb[2]),
+        "{rgb:?}"
+    );
     // The corner pixels are outside the 180° image circle: black.
     assert_eq!(&image[0..3], &[0, 0, 0]);
 }
