@@ -46,7 +46,8 @@ fn percentiles(name: &str, mut samples: Vec<Duration>) {
     samples.sort();
     let at = |q: f64| samples[((samples.len() - 1) as f64 * q).round() as usize];
     println!(
-        "{name}: median {:.3} ms, p99 {:.3} ms, max {:.3} ms ({} frames)",
+        "{name}: min {:.3} ms, median {:.3} ms, p99 {:.3} ms, max {:.3} ms ({} frames)",
+        at(0.0).as_secs_f64() * 1e3,
         at(0.5).as_secs_f64() * 1e3,
         at(0.99).as_secs_f64() * 1e3,
         at(1.0).as_secs_f64() * 1e3,

@@ -340,11 +340,11 @@ impl Renderer {
                         colour = floor;
                     }
                     for &i in &candidates {
-                        if let Some((t, face)) = boxes[i].hit(ray) {
-                            if t < nearest {
-                                nearest = t;
-                                colour = boxes[i].faces[face];
-                            }
+                        if let Some((t, face)) = boxes[i].hit(ray)
+                            && t < nearest
+                        {
+                            nearest = t;
+                            colour = boxes[i].faces[face];
                         }
                     }
                     let pixel = &mut image[index * 3..index * 3 + 3];
