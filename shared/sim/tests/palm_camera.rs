@@ -77,12 +77,13 @@ fn observe(
     })
 }
 
-/// Worst horizontal position error over a set of cube positions around the point below a camera
-/// 0.5 m above the cube (straight down and tilted), with `calibration` used by perception.
-fn worst_error_at_half_a_metre(
+/// Worst position error over a set of cube positions around the point below a camera `height`
+/// (m) above the cube (straight down and tilted), with `calibration` used by perception.
+fn worst_error(
     config: &CameraConfig,
     calibration: CameraCalibration,
     seed: u64,
+    height: f64,
 ) -> f64 {
     let renderer = Renderer::new(config.model(), config.pixel_noise_std);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -102,7 +103,7 @@ fn worst_error_at_half_a_metre(
         for &tilt in &[0.0, 0.3, -0.5] {
             let cube_yaw = 0.37 * i as f64;
             let scene = scene(dx, dy, cube_yaw);
-            let camera = Vector3::new(0.0, 0.0, CUBE_Z + 0.5);
+            let camera = Vector3::new(0.0, 0.0, CUBE_Z + height);
             let tool = tool_pose_for_camera(config, camera, tilt, 0.2 * i as f64);
             let mut perception = Perception::new(PerceptionConfig::default(), calibration);
             let estimate = observe(
@@ -130,9 +131,17 @@ fn worst_error_at_half_a_metre(
 #[test]
 fn perception_recovers_the_cube_position_with_a_perfect_calibration() {
     let config = CameraConfig::default();
-    let worst = worst_error_at_half_a_metre(&config, config.calibration(), 1);
-    println!("worst position error, perfect calibration, default pixel noise: {worst:.5} m");
+    let worst = worst_error(&config, config.calibration(), 1, 0.5);
+    println!(
+        "worst position error at 0.5 m, perfect calibration, default pixel noise: {worst:.5} m"
+    );
     assert!(worst < 0.003, "worst error {worst} m");
+    // Farther away a pixel covers more ground; the fix stays within 5 mm up to 1.2 m.
+    for height in [0.3, 0.8, 1.2] {
+        let worst = worst_error(&config, config.calibration(), 2, height);
+        println!("worst position error at {height} m, perfect calibration: {worst:.5} m");
+        assert!(worst < 0.005, "worst error {worst} m at {height} m");
+    }
 }
 
 #[test]
@@ -142,7 +151,7 @@ fn perception_recovers_the_cube_position_with_the_default_noise() {
     for seed in 0..4 {
         // The calibration error (5 mm in a random direction) is drawn by the camera from its seed.
         let calibration = PalmCamera::new(&config, seed).calibration();
-        let worst = worst_error_at_half_a_metre(&config, calibration, seed);
+        let worst = worst_error(&config, calibration, seed, 0.5);
         overall = overall.max(worst);
     }
     println!("worst position error, default noise (5 mm extrinsic error): {overall:.5} m");
@@ -155,7 +164,7 @@ fn strong_pixel_noise_neither_hides_the_cube_nor_invents_one() {
         pixel_noise_std: 10.0,
         ..Default::default()
     };
-    let worst = worst_error_at_half_a_metre(&config, config.calibration(), 3);
+    let worst = worst_error(&config, config.calibration(), 3, 0.5);
     println!("worst position error, pixel noise σ = 10: {worst:.5} m");
     assert!(worst < 0.003, "worst error {worst} m");
     // No cube in the scene: nothing red survives the thresholds.
