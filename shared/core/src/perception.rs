@@ -11,6 +11,10 @@
 //! decimetres), so the blob centroid lies on the ray through the cube's centre whether the camera
 //! sees only the top face (straight above) or the top and two sides (oblique). Intersecting at
 //! the top-face height would be right only straight above.
+//!
+//! **Limits.** A cube cut by the edge of the image circle gives a centroid biased towards the
+//! image centre (the 180° lens makes this rare). Anything red in view is a candidate, so the
+//! scene keeps red for cubes; several cubes are told apart by nearness to the prediction.
 
 use std::collections::VecDeque;
 
@@ -312,9 +316,14 @@ impl Perception {
 
     /// Adds a fix and refits the velocity over the window.
     fn record_fix(&mut self, stamp: f64, position: Vector3<f64>) {
-        if self.fixes.back().is_some_and(|&(t, _)| stamp <= t) {
+        match self.fixes.back() {
+            // The same frame again: the newer fix replaces the older.
+            Some(&(t, _)) if stamp == t => {
+                self.fixes.pop_back();
+            }
             // Time went backwards (a restart): the old fixes say nothing about now.
-            self.fixes.clear();
+            Some(&(t, _)) if stamp < t => self.fixes.clear(),
+            _ => {}
         }
         self.fixes.push_back((stamp, position));
         while self
@@ -493,6 +502,11 @@ mod tests {
         }
         let v = perception.estimate().velocity;
         assert!((v - Vector3::new(0.1, 0.0, 0.0)).norm() < 1e-9, "{v:?}");
+        // The same frame twice replaces the fix rather than restarting the window.
+        let last = 29.0 / 30.0;
+        perception.record_fix(last, Vector3::new(0.1 * last, 0.0, 0.0));
+        assert_eq!(perception.fixes.len(), 15 + 1);
+        assert!((perception.estimate().velocity.x - 0.1).abs() < 1e-9);
         // Time going backwards restarts the window; the velocity is held until it spans enough.
         perception.record_fix(0.0, Vector3::zeros());
         assert!((perception.estimate().velocity.x - 0.1).abs() < 1e-9);
