@@ -4,6 +4,7 @@
 //! Everything here is pure code: no IPC and no I/O beyond reading model and configuration files.
 //!
 //! - [`base_controller`]: closest-approach geometry and the constant-speed polar base controller.
+//! - [`camera`]: the palm camera's equidistant fisheye model, configuration and calibration.
 //! - [`chain`]: serial chains loaded from URDF.
 //! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
@@ -14,6 +15,7 @@
 //! - [`quintic`]: quintic trajectories with full boundary conditions.
 //! - [`reach_range`]: manipulation range derived from the model.
 //! - [`reacher`]: transit-time trigger and quintic reach toward the predicted object.
+//! - [`perception`]: cube position and velocity from palm-camera images.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
@@ -23,6 +25,7 @@
 //! - [`error`]: errors that name the file and element at fault.
 
 pub mod base_controller;
+pub mod camera;
 pub mod chain;
 pub mod error;
 pub mod final_phase;
@@ -32,6 +35,7 @@ pub mod kinematics;
 pub mod mission;
 pub mod on_the_move;
 pub mod planning;
+pub mod perception;
 pub mod qp_scenario;
 pub mod quintic;
 pub mod reach_range;

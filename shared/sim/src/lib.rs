@@ -4,6 +4,7 @@
 //! with realistic imperfections, objects, a gripper with a grasp model, and a palm camera that
 //! renders real images. Every random draw comes from a seeded RNG, so a scenario and a seed give
 //! the same result bit for bit.
+
 pub mod experiment;
 pub mod geometry;
 pub mod grasp;
@@ -11,6 +12,7 @@ pub mod gripper;
 pub mod metrics;
 pub mod objects;
 pub mod random;
+pub mod render;
 pub mod scenario;
 pub mod world;
 

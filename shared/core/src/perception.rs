@@ -1,0 +1,514 @@
+//! Cube perception from the palm camera (paper section III-B, ALGORITHMS.md §4).
+//!
+//! Each image is thresholded for red pixels; the red pixels are grouped into connected blobs
+//! (8-connectivity); the centroid of the chosen blob is un-projected through the calibration to a
+//! ray, the ray is taken to the world with the tool pose at image time, and it is intersected
+//! with the horizontal plane at the known height of the cube's centre. The world velocity comes
+//! from the successive fixes.
+//!
+//! **Why the cube's centre height.** The silhouette of a cube is centrally symmetric about the
+//! image of its centre (exactly in an orthographic view, closely for a 30 mm cube at a few
+//! decimetres), so the blob centroid lies on the ray through the cube's centre whether the camera
+//! sees only the top face (straight above) or the top and two sides (oblique). Intersecting at
+//! the top-face height would be right only straight above.
+//!
+//! **Limits.** A cube cut by the edge of the image circle gives a centroid biased towards the
+//! image centre (the 180° lens makes this rare). Anything red in view is a candidate, so the
+//! scene keeps red for cubes; several cubes are told apart by nearness to the prediction.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry3, Vector2, Vector3};
+use serde::Deserialize;
+
+use crate::camera::CameraCalibration;
+use crate::types::TargetEstimate;
+
+/// Settings of [`Perception`]. Every key is optional; unknown keys are errors.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerceptionConfig {
+    /// A pixel is red when its red channel is at least this (8-bit). Default 80: the cube's face
+    /// in shadow renders at about 120, so 80 leaves margin for noise and darker lighting.
+    pub min_red: u8,
+    /// ... and its red channel exceeds both green and blue by at least this. Default 50: the
+    /// grey, light-wood and blue surfaces of the scene have margins below 25, so even pixel noise
+    /// of σ = 10 levels seldom lifts a pixel over (and never four neighbours together), while the
+    /// cube's darkest face is about 100 above.
+    pub min_red_margin: u8,
+    /// Fewest red pixels a blob needs to count as the cube; with fewer the cube is "not visible".
+    /// Default 4 (a 30 mm cube at 1.5 m still covers about 2×2 pixels in the default camera).
+    pub min_pixels: usize,
+    /// Length of the sliding window of fixes the velocity is fitted over, s. The velocity is the
+    /// slope of the least-squares line through the fixes of the last `velocity_window` seconds:
+    /// a low-pass differentiator whose noise falls as window^(−3/2) and whose lag for a ramp is
+    /// half the window. Default 0.5 s: with 1 mm of fix noise at 30 Hz the velocity noise is about
+    /// 2 mm/s, and a 30 mm/s cube moves 7.5 mm during the lag (which is only a velocity lag: the
+    /// reported position is the latest fix).
+    pub velocity_window: f64,
+    /// Shortest time span of the fixes in the window before a new velocity is fitted, s. Until
+    /// then the previous velocity (zero at the start) is held. Default 0.1 s.
+    pub min_velocity_span: f64,
+    /// Fixes farther than this from the camera are discarded (rays grazing the plane), m.
+    /// Default 5.
+    pub max_range: f64,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self {
+            min_red: 80,
+            min_red_margin: 50,
+            min_pixels: 4,
+            velocity_window: 0.5,
+            min_velocity_span: 0.1,
+            max_range: 5.0,
+        }
+    }
+}
+
+impl PerceptionConfig {
+    /// Whether an RGB pixel counts as red under these thresholds.
+    pub fn is_red(&self, r: u8, g: u8, b: u8) -> bool {
+        let margin = self.min_red_margin as i16;
+        r >= self.min_red && r as i16 - g as i16 >= margin && r as i16 - b as i16 >= margin
+    }
+}
+
+/// One camera image and what perception needs to interpret it.
+#[derive(Debug, Clone, Copy)]
+pub struct PerceptionInput<'a> {
+    /// RGB8 pixels, row-major, `width × height × 3` bytes.
+    pub image: &'a [u8],
+    /// Image width, pixels; must equal the calibration's.
+    pub width: u32,
+    /// Image height, pixels; must equal the calibration's.
+    pub height: u32,
+    /// Capture time of the image, s (monotonic).
+    pub stamp: f64,
+    /// World pose of the tool at capture time (as the robot's state estimate knows it).
+    pub tool_pose: Isometry3<f64>,
+    /// World height of the cube's centre, m (known a priori, as in the paper).
+    pub object_height: f64,
+    /// Where the cube is expected (e.g. the task's target position), used to choose between
+    /// several red blobs before the first fix. After a fix, the blob nearest to the prediction
+    /// from the last estimate is chosen; with neither, the largest blob.
+    pub target_hint: Option<Vector3<f64>>,
+}
+
+/// What perception reports after each image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectEstimate {
+    /// World position of the cube's centre from the latest fix, m (zero before the first fix).
+    pub position: Vector3<f64>,
+    /// World velocity of the cube, m/s (zero until fixes span `min_velocity_span`).
+    pub velocity: Vector3<f64>,
+    /// Whether the cube was found in this image.
+    pub visible: bool,
+    /// Whether `position` comes from a fix at all (this image's or an earlier one's).
+    pub valid: bool,
+    /// Capture time of the image that gave `position`, s.
+    pub stamp: f64,
+}
+
+impl Default for ObjectEstimate {
+    fn default() -> Self {
+        Self {
+            position: Vector3::zeros(),
+            velocity: Vector3::zeros(),
+            visible: false,
+            valid: false,
+            stamp: 0.0,
+        }
+    }
+}
+
+impl ObjectEstimate {
+    /// The estimate as the controllers' target type.
+    pub fn target(&self) -> TargetEstimate {
+        TargetEstimate {
+            position: self.position,
+            velocity: self.velocity,
+        }
+    }
+}
+
+/// A connected group of red pixels.
+#[derive(Debug, Clone, Copy)]
+struct Blob {
+    pixels: usize,
+    sum_u: f64,
+    sum_v: f64,
+}
+
+impl Blob {
+    fn centroid(&self) -> Vector2<f64> {
+        Vector2::new(self.sum_u, self.sum_v) / self.pixels as f64
+    }
+}
+
+/// The cube perception step function; it keeps the recent fixes for the velocity estimate and
+/// scratch buffers, so a step allocates nothing once warmed up.
+#[derive(Debug, Clone)]
+pub struct Perception {
+    config: PerceptionConfig,
+    calibration: CameraCalibration,
+    fixes: VecDeque<(f64, Vector3<f64>)>,
+    estimate: ObjectEstimate,
+    labels: Vec<u32>,
+    stack: Vec<u32>,
+    blobs: Vec<Blob>,
+}
+
+const UNLABELLED: u32 = u32::MAX;
+const NOT_RED: u32 = u32::MAX - 1;
+
+impl Perception {
+    /// Perception with `config`, using `calibration` (the calibrated camera, which may differ from
+    /// the true one) to turn pixels into rays.
+    pub fn new(config: PerceptionConfig, calibration: CameraCalibration) -> Self {
+        Self {
+            config,
+            calibration,
+            fixes: VecDeque::new(),
+            estimate: ObjectEstimate::default(),
+            labels: Vec::new(),
+            stack: Vec::new(),
+            blobs: Vec::new(),
+        }
+    }
+
+    /// The latest estimate.
+    pub fn estimate(&self) -> ObjectEstimate {
+        self.estimate
+    }
+
+    /// Processes one image. When the cube is not found (or the input is unusable: wrong size,
+    /// non-finite pose, height or stamp) the previous estimate is returned with `visible = false`.
+    pub fn step(&mut self, input: &PerceptionInput) -> ObjectEstimate {
+        self.estimate.visible = false;
+        if let Some(position) = self.locate(input) {
+            self.record_fix(input.stamp, position);
+        }
+        self.estimate
+    }
+
+    /// The world position of the cube in this image, if it is seen.
+    fn locate(&mut self, input: &PerceptionInput) -> Option<Vector3<f64>> {
+        let model = &self.calibration.model;
+        let pixels = model.width as usize * model.height as usize;
+        let usable = input.width == model.width
+            && input.height == model.height
+            && input.image.len() == pixels * 3
+            && input.stamp.is_finite()
+            && input.object_height.is_finite()
+            && isometry_is_finite(&input.tool_pose)
+            && input
+                .target_hint
+                .is_none_or(|h| h.iter().all(|v| v.is_finite()));
+        if !usable || self.threshold(input.image) < self.config.min_pixels {
+            return None;
+        }
+        self.label_blobs(input.width as usize, input.height as usize);
+        let prior = if self.estimate.valid {
+            Some(
+                self.estimate
+                    .target()
+                    .predict(input.stamp - self.estimate.stamp),
+            )
+        } else {
+            input.target_hint
+        };
+        let mut best: Option<(f64, Vector3<f64>)> = None;
+        for blob in self
+            .blobs
+            .iter()
+            .filter(|b| b.pixels >= self.config.min_pixels)
+        {
+            let Some(fix) = self.intersect(blob.centroid(), &input.tool_pose, input.object_height)
+            else {
+                continue;
+            };
+            // Nearest to the prior wins; without one, the largest blob.
+            let score = match prior {
+                Some(p) => (fix - p).norm(),
+                None => -(blob.pixels as f64),
+            };
+            if best.is_none_or(|(s, _)| score < s) {
+                best = Some((score, fix));
+            }
+        }
+        best.map(|(_, fix)| fix)
+    }
+
+    /// Marks red pixels in `labels`; returns how many there are.
+    fn threshold(&mut self, image: &[u8]) -> usize {
+        self.labels.clear();
+        let mut count = 0;
+        self.labels.extend(image.chunks_exact(3).map(|p| {
+            if self.config.is_red(p[0], p[1], p[2]) {
+                count += 1;
+                UNLABELLED
+            } else {
+                NOT_RED
+            }
+        }));
+        count
+    }
+
+    /// Groups the red pixels into 8-connected blobs (flood fill), filling `blobs`.
+    fn label_blobs(&mut self, width: usize, height: usize) {
+        self.blobs.clear();
+        for start in 0..self.labels.len() {
+            if self.labels[start] != UNLABELLED {
+                continue;
+            }
+            let id = self.blobs.len() as u32;
+            let mut blob = Blob {
+                pixels: 0,
+                sum_u: 0.0,
+                sum_v: 0.0,
+            };
+            self.labels[start] = id;
+            self.stack.clear();
+            self.stack.push(start as u32);
+            while let Some(index) = self.stack.pop() {
+                let index = index as usize;
+                let (u, v) = (index % width, index / width);
+                blob.pixels += 1;
+                blob.sum_u += u as f64;
+                blob.sum_v += v as f64;
+                for nv in v.saturating_sub(1)..=(v + 1).min(height - 1) {
+                    for nu in u.saturating_sub(1)..=(u + 1).min(width - 1) {
+                        let neighbour = nv * width + nu;
+                        if self.labels[neighbour] == UNLABELLED {
+                            self.labels[neighbour] = id;
+                            self.stack.push(neighbour as u32);
+                        }
+                    }
+                }
+            }
+            self.blobs.push(blob);
+        }
+    }
+
+    /// Intersects the calibrated ray of `pixel` with the plane `z = height` (world).
+    fn intersect(
+        &self,
+        pixel: Vector2<f64>,
+        tool_pose: &Isometry3<f64>,
+        height: f64,
+    ) -> Option<Vector3<f64>> {
+        let ray = self.calibration.model.unproject(&pixel)?;
+        let world_from_camera = tool_pose * self.calibration.tool_from_camera;
+        let origin = world_from_camera.translation.vector;
+        let direction = world_from_camera.rotation * ray.into_inner();
+        if direction.z.abs() < 1e-9 {
+            return None;
+        }
+        let distance = (height - origin.z) / direction.z;
+        if !(distance > 0.0 && distance <= self.config.max_range) {
+            return None;
+        }
+        let fix = origin + distance * direction;
+        fix.iter().all(|v| v.is_finite()).then_some(fix)
+    }
+
+    /// Adds a fix and refits the velocity over the window.
+    fn record_fix(&mut self, stamp: f64, position: Vector3<f64>) {
+        match self.fixes.back() {
+            // The same frame again: the newer fix replaces the older.
+            Some(&(t, _)) if stamp == t => {
+                self.fixes.pop_back();
+            }
+            // Time went backwards (a restart): the old fixes say nothing about now.
+            Some(&(t, _)) if stamp < t => self.fixes.clear(),
+            _ => {}
+        }
+        self.fixes.push_back((stamp, position));
+        while self
+            .fixes
+            .front()
+            .is_some_and(|&(t, _)| t < stamp - self.config.velocity_window)
+        {
+            self.fixes.pop_front();
+        }
+        if let Some(velocity) = self.fit_velocity() {
+            self.estimate.velocity = velocity;
+        }
+        self.estimate.position = position;
+        self.estimate.stamp = stamp;
+        self.estimate.visible = true;
+        self.estimate.valid = true;
+    }
+
+    /// Slope of the least-squares line through the fixes in the window, if they span long enough.
+    fn fit_velocity(&self) -> Option<Vector3<f64>> {
+        let (first, _) = *self.fixes.front()?;
+        let (last, _) = *self.fixes.back()?;
+        if last - first < self.config.min_velocity_span {
+            return None;
+        }
+        let n = self.fixes.len() as f64;
+        let mean_t = self.fixes.iter().map(|&(t, _)| t - first).sum::<f64>() / n;
+        let mean_p = self.fixes.iter().map(|&(_, p)| p).sum::<Vector3<f64>>() / n;
+        let (mut stt, mut stp) = (0.0, Vector3::zeros());
+        for &(t, p) in &self.fixes {
+            let dt = t - first - mean_t;
+            stt += dt * dt;
+            stp += dt * (p - mean_p);
+        }
+        let velocity = stp / stt;
+        velocity.iter().all(|v| v.is_finite()).then_some(velocity)
+    }
+}
+
+fn isometry_is_finite(pose: &Isometry3<f64>) -> bool {
+    pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraConfig;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A camera straight above `(0, 0)` at height 0.5 looking down (tool z = −world z).
+    fn looking_down() -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 0.5),
+            UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0),
+        )
+    }
+
+    fn calibration() -> CameraCalibration {
+        let mut c = CameraConfig::default().calibration();
+        c.tool_from_camera = Isometry3::identity();
+        c
+    }
+
+    /// A grey image with red squares of `half` pixels half-size at the given pixel centres.
+    fn image_with_squares(centres: &[(usize, usize)], half: usize) -> Vec<u8> {
+        let (w, h) = (320, 240);
+        let mut image = vec![100u8; w * h * 3];
+        for &(cu, cv) in centres {
+            for v in cv - half..=cv + half {
+                for u in cu - half..=cu + half {
+                    image[(v * w + u) * 3..(v * w + u) * 3 + 3].copy_from_slice(&[200, 20, 20]);
+                }
+            }
+        }
+        image
+    }
+
+    fn input(image: &[u8], stamp: f64) -> PerceptionInput<'_> {
+        PerceptionInput {
+            image,
+            width: 320,
+            height: 240,
+            stamp,
+            tool_pose: looking_down(),
+            object_height: 0.0,
+            target_hint: None,
+        }
+    }
+
+    #[test]
+    fn red_square_at_the_principal_point_is_below_the_camera() {
+        // The square is centred on pixel (159, 119), half a pixel from the principal point
+        // (159.5, 119.5) in u and in v.
+        let image = image_with_squares(&[(159, 119)], 2);
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let estimate = perception.step(&input(&image, 0.0));
+        assert!(estimate.visible && estimate.valid);
+        let expected = 0.5 * (0.5 / calibration().model.fx);
+        assert!(
+            (estimate.position.x.abs() - expected).abs() < 1e-4,
+            "{estimate:?}"
+        );
+        assert!(estimate.position.z.abs() < 1e-12);
+    }
+
+    #[test]
+    fn chooses_the_blob_nearest_the_hint_then_tracks_it() {
+        let image = image_with_squares(&[(60, 119), (260, 119)], 3);
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let mut first = input(&image, 0.0);
+        // Camera x is world x here (roll by π flips y and z), so u > cx is +x.
+        first.target_hint = Some(Vector3::new(1.0, 0.0, 0.0));
+        let estimate = perception.step(&first);
+        assert!(estimate.position.x > 0.1, "{estimate:?}");
+        let again = perception.step(&input(&image, 0.1));
+        assert!((again.position - estimate.position).norm() < 1e-12);
+        let mut other = Perception::new(PerceptionConfig::default(), calibration());
+        first.target_hint = Some(Vector3::new(-1.0, 0.0, 0.0));
+        assert!(other.step(&first).position.x < -0.1);
+    }
+
+    #[test]
+    fn few_red_pixels_are_not_visible_and_the_last_fix_is_held() {
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let seen = image_with_squares(&[(200, 100)], 2);
+        let fix = perception.step(&input(&seen, 1.0));
+        assert!(fix.visible);
+        // A single red pixel (below min_pixels).
+        let speck = image_with_squares(&[(200, 100)], 0);
+        let lost = perception.step(&input(&speck, 1.1));
+        assert!(!lost.visible && lost.valid);
+        assert_eq!(lost.position, fix.position);
+        assert_eq!(lost.stamp, 1.0);
+    }
+
+    #[test]
+    fn non_finite_or_mismatched_input_never_yields_nan() {
+        let image = image_with_squares(&[(200, 100)], 2);
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let mut bad = input(&image, f64::NAN);
+        assert!(!perception.step(&bad).visible);
+        bad.stamp = 0.0;
+        bad.object_height = f64::INFINITY;
+        assert!(!perception.step(&bad).visible);
+        bad.object_height = 0.0;
+        bad.tool_pose.translation.vector.x = f64::NAN;
+        assert!(!perception.step(&bad).visible);
+        bad.tool_pose = looking_down();
+        bad.width = 319;
+        assert!(!perception.step(&bad).visible);
+        bad.width = 320;
+        bad.image = &image[3..];
+        let estimate = perception.step(&bad);
+        assert!(!estimate.visible && !estimate.valid);
+        assert!(
+            estimate
+                .position
+                .iter()
+                .chain(estimate.velocity.iter())
+                .all(|v| v.is_finite())
+        );
+        // The plane above the camera is never hit by a downward ray.
+        let mut above = input(&image, 0.0);
+        above.object_height = 1.0;
+        assert!(!perception.step(&above).visible);
+    }
+
+    #[test]
+    fn velocity_is_the_slope_of_the_fixes() {
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        // Feed fixes directly: 0.1 m/s along x, 30 Hz.
+        for k in 0..30 {
+            let t = k as f64 / 30.0;
+            perception.record_fix(t, Vector3::new(0.1 * t, 0.0, 0.0));
+        }
+        let v = perception.estimate().velocity;
+        assert!((v - Vector3::new(0.1, 0.0, 0.0)).norm() < 1e-9, "{v:?}");
+        // The same frame twice replaces the fix rather than restarting the window.
+        let last = 29.0 / 30.0;
+        perception.record_fix(last, Vector3::new(0.1 * last, 0.0, 0.0));
+        assert_eq!(perception.fixes.len(), 15 + 1);
+        assert!((perception.estimate().velocity.x - 0.1).abs() < 1e-9);
+        // Time going backwards restarts the window; the velocity is held until it spans enough.
+        perception.record_fix(0.0, Vector3::zeros());
+        assert!((perception.estimate().velocity.x - 0.1).abs() < 1e-9);
+    }
+}

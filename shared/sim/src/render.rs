@@ -1,0 +1,640 @@
+//! The palm camera's renderer: real RGB8 images of the scene through the equidistant fisheye
+//! model, with pixel noise, frame rate, latency and calibration error.
+//!
+//! The scene is a set of oriented boxes (the red cube, the platforms, the container's walls)
+//! above a floor plane at z = 0, lit by one directional light plus ambient light. Each pixel's
+//! ray (pre-computed once per camera, camera frame) is cast against the floor and the boxes
+//! (slab test). To keep a frame near a millisecond, the image is split into 16×16 tiles whose
+//! rays lie in a pre-computed cone; per frame, each box is tested only in the tiles whose cone
+//! meets the box's bounding-sphere cone. The gripper's fingers are not rendered.
+
+use std::collections::VecDeque;
+
+use motm_core::camera::{CameraCalibration, CameraConfig, CameraModel};
+use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
+use rand::{Rng, RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Colour of the cube to pick: saturated red.
+pub const CUBE_RED: [u8; 3] = [210, 28, 24];
+/// Colour of platforms and tables: light wood.
+pub const PLATFORM_WOOD: [u8; 3] = [168, 160, 146];
+/// Colour of the container: blue plastic.
+pub const CONTAINER_BLUE: [u8; 3] = [40, 80, 170];
+/// Colour of the floor.
+pub const FLOOR_GREY: [u8; 3] = [120, 120, 116];
+/// Colour seen where a ray hits nothing (walls and ceiling far away).
+pub const BACKGROUND: [u8; 3] = [196, 204, 214];
+
+/// Ambient share of the lighting; the directional light adds up to `1 − AMBIENT`.
+const AMBIENT: f32 = 0.55;
+/// Side of the square pixel tiles used to cull boxes, pixels.
+const TILE: usize = 16;
+
+/// An oriented, solid box in the world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneBox {
+    /// World pose of the box centre (the box's edges run along its local axes).
+    pub pose: Isometry3<f64>,
+    /// Edge lengths along the local x, y, z axes, m.
+    pub size: Vector3<f64>,
+    /// Surface colour (before lighting), RGB8.
+    pub colour: [u8; 3],
+}
+
+impl SceneBox {
+    /// A red cube of edge `edge` (m) centred at `centre`, turned by `yaw` (rad) about world z.
+    pub fn cube(centre: Vector3<f64>, yaw: f64, edge: f64) -> Self {
+        Self {
+            pose: Isometry3::new(centre, Vector3::z() * yaw),
+            size: Vector3::repeat(edge),
+            colour: CUBE_RED,
+        }
+    }
+
+    /// An axis-aligned box standing on the floor whose top face is centred at `top_centre`, with
+    /// horizontal extent `length × width` (m) and `colour`: a platform or table.
+    pub fn platform(top_centre: Vector3<f64>, length: f64, width: f64, colour: [u8; 3]) -> Self {
+        let height = top_centre.z.max(1e-3);
+        Self {
+            pose: Isometry3::translation(top_centre.x, top_centre.y, top_centre.z - 0.5 * height),
+            size: Vector3::new(length, width, height),
+            colour,
+        }
+    }
+}
+
+/// Everything the camera can see.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// The boxes, in any order.
+    pub boxes: Vec<SceneBox>,
+    /// Colour of the floor plane z = 0.
+    pub floor_colour: [u8; 3],
+    /// Colour where a ray hits nothing.
+    pub background: [u8; 3],
+}
+
+impl Default for Scene {
+    fn default() -> Self {
+        Self {
+            boxes: Vec::new(),
+            floor_colour: FLOOR_GREY,
+            background: BACKGROUND,
+        }
+    }
+}
+
+impl Scene {
+    /// Adds an open-topped container: a floor slab and four walls of thickness `wall` (m), the
+    /// outer footprint `length × width` (m) centred at `rim_centre` (x, y), rim at `rim_centre.z`,
+    /// standing on the floor, turned by `yaw` (rad).
+    pub fn add_container(
+        &mut self,
+        rim_centre: Vector3<f64>,
+        yaw: f64,
+        length: f64,
+        width: f64,
+        wall: f64,
+        colour: [u8; 3],
+    ) {
+        let height = rim_centre.z.max(wall);
+        let frame = Isometry3::new(
+            Vector3::new(rim_centre.x, rim_centre.y, 0.0),
+            Vector3::z() * yaw,
+        );
+        let mut part = |centre: Vector3<f64>, size: Vector3<f64>| {
+            self.boxes.push(SceneBox {
+                pose: frame * Isometry3::translation(centre.x, centre.y, centre.z),
+                size,
+                colour,
+            });
+        };
+        let (hl, hw) = (0.5 * length, 0.5 * width);
+        part(
+            Vector3::new(0.0, 0.0, 0.5 * wall),
+            Vector3::new(length, width, wall),
+        );
+        for side in [-1.0, 1.0] {
+            part(
+                Vector3::new(side * (hl - 0.5 * wall), 0.0, 0.5 * height),
+                Vector3::new(wall, width, height),
+            );
+            part(
+                Vector3::new(0.0, side * (hw - 0.5 * wall), 0.5 * height),
+                Vector3::new(length - 2.0 * wall, wall, height),
+            );
+        }
+    }
+}
+
+/// A tile of the image and the cone that contains all its pixels' rays.
+#[derive(Debug, Clone, Copy)]
+struct Tile {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+    axis: Vector3<f64>,
+    half_angle: f64,
+}
+
+/// A box prepared for one frame: its pose relative to the camera in f32.
+#[derive(Debug, Clone, Copy)]
+struct PreparedBox {
+    box_from_camera: Matrix3<f32>,
+    camera_in_box: Vector3<f32>,
+    half: Vector3<f32>,
+    /// Lit colour of the faces −x, +x, −y, +y, −z, +z.
+    faces: [[u8; 3]; 6],
+}
+
+impl PreparedBox {
+    /// Distance along `ray` (camera frame, unit) to the box's surface and the face hit, if the
+    /// ray enters the box in front of the camera.
+    #[inline]
+    fn hit(&self, ray: &Vector3<f32>) -> Option<(f32, usize)> {
+        let d = self.box_from_camera * ray;
+        let o = self.camera_in_box;
+        let (mut near, mut far, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0);
+        for axis in 0..3 {
+            let inv = 1.0 / d[axis];
+            let t1 = (-self.half[axis] - o[axis]) * inv;
+            let t2 = (self.half[axis] - o[axis]) * inv;
+            let (lo, hi) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
+            if lo > near {
+                near = lo;
+                // Entering through the −face when travelling along +axis.
+                face = 2 * axis + usize::from(d[axis] < 0.0);
+            }
+            far = far.min(hi);
+        }
+        (near <= far && near > 0.0).then_some((near, face))
+    }
+}
+
+/// Renders RGB8 images of a [`Scene`] through a [`CameraModel`].
+#[derive(Debug, Clone)]
+pub struct Renderer {
+    model: CameraModel,
+    /// Camera-frame unit ray of every pixel; `None` outside the lens' image circle.
+    rays: Vec<Option<Vector3<f32>>>,
+    tiles: Vec<Tile>,
+    noise: NoiseTable,
+}
+
+impl Renderer {
+    /// A renderer for `model` adding Gaussian noise of `pixel_noise_std` (8-bit levels) to every
+    /// channel of every pixel.
+    pub fn new(model: CameraModel, pixel_noise_std: f64) -> Self {
+        let (w, h) = (model.width as usize, model.height as usize);
+        let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
+            .map(|i| {
+                let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
+                model
+                    .unproject(&pixel)
+                    .map(|r| r.into_inner().cast::<f32>())
+            })
+            .collect();
+        let mut tiles = Vec::new();
+        for y0 in (0..h).step_by(TILE) {
+            for x0 in (0..w).step_by(TILE) {
+                let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
+                let tile_rays = || {
+                    (y0..y1)
+                        .flat_map(move |y| (x0..x1).map(move |x| y * w + x))
+                        .filter_map(|i| rays[i].map(|r| r.cast::<f64>()))
+                };
+                let sum: Vector3<f64> = tile_rays().sum();
+                let Some(axis) = sum.try_normalize(1e-12) else {
+                    continue;
+                };
+                let half_angle = tile_rays()
+                    .map(|r| r.dot(&axis).clamp(-1.0, 1.0).acos())
+                    .fold(0.0, f64::max);
+                // Margin for f32 rounding of the rays.
+                tiles.push(Tile {
+                    x0,
+                    y0,
+                    x1,
+                    y1,
+                    axis,
+                    half_angle: half_angle + 1e-4,
+                });
+            }
+        }
+        Self {
+            model,
+            rays,
+            tiles,
+            noise: NoiseTable::new(pixel_noise_std),
+        }
+    }
+
+    /// The camera model this renderer images through.
+    pub fn model(&self) -> &CameraModel {
+        &self.model
+    }
+
+    /// Renders `scene` seen from `world_from_camera` into a new row-major RGB8 image.
+    pub fn render<R: Rng + ?Sized>(
+        &self,
+        scene: &Scene,
+        world_from_camera: &Isometry3<f64>,
+        rng: &mut R,
+    ) -> Vec<u8> {
+        let mut image = vec![0; self.model.width as usize * self.model.height as usize * 3];
+        self.render_into(scene, world_from_camera, rng, &mut image);
+        image
+    }
+
+    /// Renders `scene` seen from `world_from_camera` into `image` (row-major RGB8, exactly
+    /// `width × height × 3` bytes). Pixels outside the lens' image circle are black. Noise draws
+    /// come from `rng` (none when the noise is zero).
+    ///
+    /// # Panics
+    /// If `image` has the wrong length.
+    pub fn render_into<R: Rng + ?Sized>(
+        &self,
+        scene: &Scene,
+        world_from_camera: &Isometry3<f64>,
+        rng: &mut R,
+        image: &mut [u8],
+    ) {
+        let w = self.model.width as usize;
+        assert_eq!(
+            image.len(),
+            w * self.model.height as usize * 3,
+            "image size"
+        );
+        image.fill(0);
+        let light = Vector3::new(0.3, -0.2, 1.0).normalize();
+        let lit = |colour: [u8; 3], normal: Vector3<f64>| {
+            let shade = AMBIENT + (1.0 - AMBIENT) * (normal.dot(&light) as f32).max(0.0);
+            colour.map(|c| (c as f32 * shade).round() as u8)
+        };
+        let camera_from_world = world_from_camera.inverse();
+        let boxes: Vec<PreparedBox> = scene
+            .boxes
+            .iter()
+            .map(|b| {
+                let box_from_camera = b.pose.inverse() * world_from_camera;
+                let r = b.pose.rotation;
+                let axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
+                let mut faces = [[0u8; 3]; 6];
+                for (axis, a) in axes.iter().enumerate() {
+                    faces[2 * axis] = lit(b.colour, -a);
+                    faces[2 * axis + 1] = lit(b.colour, *a);
+                }
+                PreparedBox {
+                    box_from_camera: box_from_camera
+                        .rotation
+                        .to_rotation_matrix()
+                        .matrix()
+                        .cast(),
+                    camera_in_box: box_from_camera.translation.vector.cast(),
+                    half: (0.5 * b.size).cast(),
+                    faces,
+                }
+            })
+            .collect();
+        // Bounding cone of every box: direction and half-angle seen from the camera (None: the
+        // camera is inside the bounding sphere, so the box may be anywhere in the image).
+        let cones: Vec<Option<(Vector3<f64>, f64)>> = scene
+            .boxes
+            .iter()
+            .map(|b| {
+                let centre = camera_from_world * Point::from(b.pose.translation.vector);
+                let distance = centre.coords.norm();
+                let radius = 0.5 * b.size.norm();
+                (distance > radius * 1.001)
+                    .then(|| (centre.coords / distance, (radius / distance).asin()))
+            })
+            .collect();
+        let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
+        let camera_height = world_from_camera.translation.z as f32;
+        let floor = lit(scene.floor_colour, Vector3::z());
+        let background = scene.background;
+        let mut candidates = Vec::with_capacity(boxes.len());
+        let mut noise = self.noise.stream(rng);
+        for tile in &self.tiles {
+            candidates.clear();
+            candidates.extend(cones.iter().enumerate().filter_map(|(i, cone)| match cone {
+                None => Some(i),
+                Some((direction, angle)) => {
+                    let between = tile.axis.dot(direction).clamp(-1.0, 1.0).acos();
+                    (between <= tile.half_angle + angle).then_some(i)
+                }
+            }));
+            for y in tile.y0..tile.y1 {
+                for x in tile.x0..tile.x1 {
+                    let index = y * w + x;
+                    let Some(ray) = &self.rays[index] else {
+                        continue;
+                    };
+                    let mut nearest = f32::INFINITY;
+                    let mut colour = background;
+                    let down = floor_normal.dot(ray);
+                    if down < 0.0 && camera_height > 0.0 {
+                        nearest = -camera_height / down;
+                        colour = floor;
+                    }
+                    for &i in &candidates {
+                        if let Some((t, face)) = boxes[i].hit(ray)
+                            && t < nearest
+                        {
+                            nearest = t;
+                            colour = boxes[i].faces[face];
+                        }
+                    }
+                    let pixel = &mut image[index * 3..index * 3 + 3];
+                    for (out, value) in pixel.iter_mut().zip(colour) {
+                        *out = (value as i16 + noise.next()).clamp(0, 255) as u8;
+                    }
+                }
+            }
+        }
+    }
+}
+
+type Point = nalgebra::Point3<f64>;
+
+/// Number of entries in the Gaussian quantile table (12 bits of randomness per draw).
+const NOISE_LEVELS: usize = 4096;
+
+/// Gaussian noise from a quantile table: each draw takes 12 random bits, so one `u64` gives five
+/// draws. The table holds the standard normal quantiles at (k + ½)/4096 times σ, rounded to whole
+/// 8-bit levels (the image is integer anyway), so the draws are Gaussian to within the table's
+/// resolution (tails cut at ±3.7σ) then rounded.
+#[derive(Debug, Clone)]
+struct NoiseTable {
+    values: Vec<i16>,
+}
+
+impl NoiseTable {
+    fn new(std: f64) -> Self {
+        let values = if std > 0.0 {
+            (0..NOISE_LEVELS)
+                .map(|k| {
+                    let q = std * normal_quantile((k as f64 + 0.5) / NOISE_LEVELS as f64);
+                    q.round().clamp(-255.0, 255.0) as i16
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Self { values }
+    }
+
+    fn stream<'a, R: Rng + ?Sized>(&'a self, rng: &'a mut R) -> NoiseStream<'a, R> {
+        NoiseStream {
+            table: &self.values,
+            rng,
+            bits: 0,
+            left: 0,
+        }
+    }
+}
+
+/// Draws from a [`NoiseTable`].
+struct NoiseStream<'a, R: ?Sized> {
+    table: &'a [i16],
+    rng: &'a mut R,
+    bits: u64,
+    left: u32,
+}
+
+impl<R: Rng + ?Sized> NoiseStream<'_, R> {
+    #[inline]
+    fn next(&mut self) -> i16 {
+        if self.table.is_empty() {
+            return 0;
+        }
+        if self.left == 0 {
+            self.bits = self.rng.next_u64();
+            self.left = 5;
+        }
+        let k = (self.bits & (NOISE_LEVELS as u64 - 1)) as usize;
+        self.bits >>= 12;
+        self.left -= 1;
+        self.table[k]
+    }
+}
+
+/// The standard normal quantile (inverse CDF) at `p` in (0, 1), by Acklam's rational
+/// approximation (relative error below 1.2·10⁻⁹).
+fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969_683_028_665_376e1,
+        2.209_460_984_245_205e2,
+        -2.759_285_104_469_687e2,
+        1.383_577_518_672_69e2,
+        -3.066_479_806_614_716e1,
+        2.506_628_277_459_239,
+    ];
+    const B: [f64; 5] = [
+        -5.447_609_879_822_406e1,
+        1.615_858_368_580_409e2,
+        -1.556_989_798_598_866e2,
+        6.680_131_188_771_972e1,
+        -1.328_068_155_288_572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784_894_002_430_293e-3,
+        -3.223_964_580_411_365e-1,
+        -2.400_758_277_161_838,
+        -2.549_732_539_343_734,
+        4.374_664_141_464_968,
+        2.938_163_982_698_783,
+    ];
+    const D: [f64; 4] = [
+        7.784_695_709_041_462e-3,
+        3.224_671_290_700_398e-1,
+        2.445_134_137_142_996,
+        3.754_408_661_907_416,
+    ];
+    let tail = |q: f64| {
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    };
+    const LOW: f64 = 0.02425;
+    if p < LOW {
+        tail((-2.0 * p.ln()).sqrt())
+    } else if p > 1.0 - LOW {
+        -tail((-2.0 * (1.0 - p).ln()).sqrt())
+    } else {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    }
+}
+
+/// One image from the palm camera.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraFrame {
+    /// RGB8 pixels, row-major.
+    pub image: Vec<u8>,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Capture (exposure) time, s.
+    pub stamp: f64,
+}
+
+/// The simulated palm camera: captures at its frame rate, delivers each frame after its latency,
+/// and hands perception a calibration that is off by the configured extrinsic error.
+#[derive(Debug, Clone)]
+pub struct PalmCamera {
+    config: CameraConfig,
+    renderer: Renderer,
+    rng: ChaCha8Rng,
+    calibration: CameraCalibration,
+    next_capture: f64,
+    in_flight: VecDeque<CameraFrame>,
+}
+
+impl PalmCamera {
+    /// A camera with `config` (assumed valid, see [`CameraConfig::validate`]); `seed` seeds the
+    /// pixel noise and the calibration error drawn here.
+    pub fn new(config: &CameraConfig, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let offset = random_unit_vector(&mut rng) * config.extrinsic_error;
+        Self {
+            config: *config,
+            renderer: Renderer::new(config.model(), config.pixel_noise_std),
+            calibration: config.calibration().with_position_offset(offset),
+            rng,
+            next_capture: 0.0,
+            in_flight: VecDeque::new(),
+        }
+    }
+
+    /// The calibration perception should use (the true one plus the calibration error).
+    pub fn calibration(&self) -> CameraCalibration {
+        self.calibration
+    }
+
+    /// The renderer (true intrinsics).
+    pub fn renderer(&self) -> &Renderer {
+        &self.renderer
+    }
+
+    /// Advances the camera to time `now` (s): captures a frame of `scene` from the true tool pose
+    /// `world_from_tool` when one is due, and returns the newest frame whose latency has passed
+    /// (older undelivered frames are dropped, as a driver that keeps only the latest would).
+    pub fn step(
+        &mut self,
+        scene: &Scene,
+        world_from_tool: &Isometry3<f64>,
+        now: f64,
+    ) -> Option<CameraFrame> {
+        if now >= self.next_capture {
+            let world_from_camera = world_from_tool * self.config.tool_from_camera.isometry();
+            let image = self
+                .renderer
+                .render(scene, &world_from_camera, &mut self.rng);
+            self.in_flight.push_back(CameraFrame {
+                image,
+                width: self.config.width,
+                height: self.config.height,
+                stamp: now,
+            });
+            let period = 1.0 / self.config.rate_hz;
+            self.next_capture = (self.next_capture + period).max(now + 0.5 * period);
+        }
+        let mut ready = None;
+        while self
+            .in_flight
+            .front()
+            .is_some_and(|f| f.stamp + self.config.latency <= now)
+        {
+            ready = self.in_flight.pop_front();
+        }
+        ready
+    }
+}
+
+/// A direction drawn uniformly on the unit sphere.
+fn random_unit_vector<R: Rng + ?Sized>(rng: &mut R) -> Vector3<f64> {
+    loop {
+        let v = Vector3::from_fn(|_, _| 2.0 * rng.random::<f64>() - 1.0);
+        let n = v.norm();
+        if n > 1e-3 && n <= 1.0 {
+            return v / n;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_quantile_matches_known_values() {
+        assert!(normal_quantile(0.5).abs() < 1e-12);
+        assert!((normal_quantile(0.975) - 1.959_963_984_540_054).abs() < 1e-8);
+        assert!((normal_quantile(0.001) + 3.090_232_306_167_813).abs() < 1e-7);
+    }
+
+    #[test]
+    fn noise_has_the_configured_spread() {
+        let table = NoiseTable::new(3.0);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut stream = table.stream(&mut rng);
+        let samples: Vec<f64> = (0..50_000).map(|_| stream.next() as f64).collect();
+        let mean = samples.iter().sum::<f64>() / samples.len() as f64;
+        let var = samples.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / samples.len() as f64;
+        assert!(mean.abs() < 0.05, "mean {mean}");
+        // Rounding to whole levels adds 1/12 to the variance.
+        let expected = (9.0_f64 + 1.0 / 12.0).sqrt();
+        assert!((var.sqrt() - expected).abs() < 0.05, "std {}", var.sqrt());
+    }
+
+    #[test]
+    fn slab_test_finds_the_entry_face() {
+        let cube = PreparedBox {
+            box_from_camera: Matrix3::identity(),
+            camera_in_box: Vector3::new(0.0, 0.0, 1.0),
+            half: Vector3::repeat(0.1),
+            faces: [[0; 3]; 6],
+        };
+        let (t, face) = cube.hit(&Vector3::new(0.0, 0.0, -1.0)).unwrap();
+        assert!((t - 0.9).abs() < 1e-6);
+        assert_eq!(face, 5, "+z face");
+        assert!(cube.hit(&Vector3::new(0.0, 0.0, 1.0)).is_none(), "behind");
+        assert!(
+            cube.hit(&Vector3::new(1.0, 0.0, -1.0).normalize())
+                .is_none(),
+            "beside"
+        );
+    }
+
+    #[test]
+    fn camera_delivers_frames_after_the_latency_at_the_frame_rate() {
+        let config = CameraConfig {
+            width: 32,
+            height: 24,
+            ..Default::default()
+        };
+        let mut camera = PalmCamera::new(&config, 7);
+        let scene = Scene::default();
+        let pose = Isometry3::translation(0.0, 0.0, 1.0);
+        let mut stamps = Vec::new();
+        for k in 0..=1000 {
+            let now = k as f64 * 0.001;
+            if let Some(frame) = camera.step(&scene, &pose, now) {
+                assert!(now - frame.stamp >= config.latency - 1e-12);
+                assert!(now - frame.stamp < config.latency + 0.002);
+                assert_eq!(frame.image.len(), 32 * 24 * 3);
+                stamps.push(frame.stamp);
+            }
+        }
+        // 30 Hz for 1 s, minus the frames still in flight.
+        assert!((29..=31).contains(&stamps.len()), "{} frames", stamps.len());
+        let offset = camera.calibration().tool_from_camera.translation.vector
+            - config.tool_from_camera.isometry().translation.vector;
+        assert!((offset.norm() - config.extrinsic_error).abs() < 1e-12);
+    }
+}
