@@ -671,3 +671,25 @@ fn closing_a_centimetre_high_while_descending_grasps_but_closing_above_the_cube_
         }
     }
 }
+
+#[test]
+fn every_shipped_frankie_scenario_starts_clear_and_stays_running_at_rest() {
+    let robot = frankie();
+    let dir = config_dir().join("scenarios");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let s = Scenario::from_file(&path).unwrap();
+        if s.robot != "frankie" {
+            continue;
+        }
+        let mut world = World::new(&robot, &s, 3);
+        hold(&mut world, &robot, GripperCommand::Open, 5.0);
+        assert_eq!(world.outcome(), None, "{}", path.display());
+        for object in &world.truth().objects {
+            assert_eq!(object.state, ObjectState::OnPlatform, "{}", path.display());
+        }
+        checked += 1;
+    }
+    assert!(checked >= 5, "only {checked} frankie scenarios");
+}
