@@ -16,6 +16,10 @@
 //! - **odometry drift**: odometry integrates the true motion with per-trial scale errors of
 //!   forward speed and yaw rate (standard deviation `odometry_drift`), so the measured pose drifts
 //!   from the true pose by about that fraction of the distance travelled.
+//!
+//! The world is kinematic: the gripper collides only with free cubes (see [`crate::grasp`]), the
+//! base only with platforms and containers, and the arm with nothing. A released cube counts as
+//! placed only in its own container (the one at its scenario `place`).
 
 use std::collections::VecDeque;
 
@@ -363,6 +367,11 @@ impl World {
     /// The fixed geometry: platforms, containers, buttons.
     pub fn layout(&self) -> &Layout {
         &self.layout
+    }
+
+    /// The robot model the world simulates.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
     }
 
     /// The tunables in use.

@@ -624,3 +624,72 @@ fn the_squeeze_aligns_a_turned_cube_up_to_the_yaw_tolerance() {
         }
     }
 }
+
+#[test]
+fn closing_a_centimetre_high_while_descending_grasps_but_closing_above_the_cube_misses() {
+    let robot = frankie();
+    let orientation = ready_tool(&robot);
+    for (height, held) in [(0.01, true), (0.025, false)] {
+        let mut world = World::new(&robot, &bench_scene(Vector3::zeros()), 1);
+        let cube = world.truth().objects[0].position();
+        let start = cube + Vector3::new(0.0, 0.0, height);
+        servo(
+            &mut world,
+            &robot,
+            start + Vector3::new(0.0, 0.0, 0.1),
+            &orientation,
+            GripperCommand::Open,
+            2.0,
+        );
+        servo(
+            &mut world,
+            &robot,
+            start,
+            &orientation,
+            GripperCommand::Open,
+            1.5,
+        );
+        let target = if held { cube } else { start };
+        servo(
+            &mut world,
+            &robot,
+            target,
+            &orientation,
+            GripperCommand::Close,
+            0.8,
+        );
+        assert_eq!(
+            world.truth().held_object.is_some(),
+            held,
+            "closed {height} m above"
+        );
+        if !held {
+            assert_eq!(
+                world.outcome(),
+                Some(Outcome::Failure(FailureReason::MissedGrasp))
+            );
+        }
+    }
+}
+
+#[test]
+fn every_shipped_frankie_scenario_starts_clear_and_stays_running_at_rest() {
+    let robot = frankie();
+    let dir = config_dir().join("scenarios");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let s = Scenario::from_file(&path).unwrap();
+        if s.robot != "frankie" {
+            continue;
+        }
+        let mut world = World::new(&robot, &s, 3);
+        hold(&mut world, &robot, GripperCommand::Open, 5.0);
+        assert_eq!(world.outcome(), None, "{}", path.display());
+        for object in &world.truth().objects {
+            assert_eq!(object.state, ObjectState::OnPlatform, "{}", path.display());
+        }
+        checked += 1;
+    }
+    assert!(checked >= 5, "only {checked} frankie scenarios");
+}
