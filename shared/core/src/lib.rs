@@ -16,6 +16,7 @@
 //! - [`reach_range`]: manipulation range derived from the model.
 //! - [`reacher`]: transit-time trigger and quintic reach toward the predicted object.
 //! - [`perception`]: cube position and velocity from palm-camera images.
+//! - [`reactive`]: the reactive (holistic stop-and-grasp) baseline's task stages.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
@@ -40,6 +41,7 @@ pub mod qp_scenario;
 pub mod quintic;
 pub mod reach_range;
 pub mod reacher;
+pub mod reactive;
 pub mod resolver;
 pub mod robot;
 pub mod servo;
