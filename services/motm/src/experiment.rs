@@ -83,9 +83,9 @@ pub fn run(config_dir: &Path, args: &ExperimentArgs) -> Result<(), CliError> {
         return Err(CliError::BadInput("--trials must be at least 1".into()));
     }
     let specs = plan(&args.which, args.trials, args.seed).map_err(CliError::BadInput)?;
-    let jobs = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
-    });
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let bar = ProgressBar::new(specs.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} trials, {elapsed} (eta {eta})")

@@ -2,9 +2,11 @@
 
 mod bench;
 mod config_dir;
+mod experiment;
 mod kin;
 mod plots;
 mod report;
+mod trial;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -61,6 +63,10 @@ enum Command {
     Kin(kin::KinArgs),
     /// Benchmark the control stack's hot paths (e.g. `motm bench qp --json`).
     Bench(bench::BenchArgs),
+    /// Run one in-process trial of a scenario and print its metrics.
+    Trial(trial::TrialArgs),
+    /// Run the paper's experiments in-process and write tables and plots.
+    Experiment(experiment::ExperimentArgs),
 }
 
 fn main() -> ExitCode {
@@ -76,6 +82,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Kin(args) => kin::run(&config_dir, &args).map_err(CliError::BadInput),
         Command::Bench(args) => bench::run(&config_dir, &args).map_err(CliError::BadInput),
+        Command::Trial(args) => trial::run(&config_dir, &args),
+        Command::Experiment(args) => experiment::run(&config_dir, &args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

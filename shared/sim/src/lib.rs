@@ -13,6 +13,7 @@ pub mod metrics;
 pub mod objects;
 pub mod random;
 pub mod render;
+pub mod runner;
 pub mod scenario;
 pub mod world;
 

@@ -516,6 +516,12 @@ impl PalmCamera {
         self.calibration
     }
 
+    /// Time of the next capture, s: a scene passed to [`PalmCamera::step`] before then is not
+    /// rendered.
+    pub fn next_capture(&self) -> f64 {
+        self.next_capture
+    }
+
     /// The renderer (true intrinsics).
     pub fn renderer(&self) -> &Renderer {
         &self.renderer

@@ -1,0 +1,131 @@
+//! `motm trial`: one in-process trial of a scenario with one method, printed as JSON or text.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use motm_core::Robot;
+use motm_sim::Scenario;
+use motm_sim::experiment::{Method, TrialResult, TrialSpec, TrialTrace};
+use motm_sim::runner::{RunnerConfig, run_trial};
+
+use crate::CliError;
+
+/// Arguments of `motm trial`.
+#[derive(Args, Debug)]
+pub struct TrialArgs {
+    /// Scenario file (TOML), or the name of one in `<config>/scenarios/`.
+    #[arg(long)]
+    pub scenario: String,
+    /// Control method: motm, reactive or planning.
+    #[arg(long, default_value = "motm")]
+    pub method: Method,
+    /// Base speed v_F, m/s (overrides the scenario's `base_speed`).
+    #[arg(long)]
+    pub base_speed: Option<f64>,
+    /// RNG seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
+pub fn scenario_path(config_dir: &Path, name: &str) -> PathBuf {
+    let direct = PathBuf::from(name);
+    if direct.is_file() {
+        direct
+    } else {
+        config_dir.join("scenarios").join(format!("{name}.toml"))
+    }
+}
+
+/// Loads a scenario and its robot, with the base speed overridden when given.
+pub fn load(
+    config_dir: &Path,
+    scenario: &str,
+    base_speed: Option<f64>,
+) -> Result<(Robot, Scenario), CliError> {
+    let path = scenario_path(config_dir, scenario);
+    let mut scenario = Scenario::from_file(&path).map_err(|e| CliError::BadInput(e.to_string()))?;
+    if let Some(v) = base_speed {
+        scenario
+            .set_base_speed(v)
+            .map_err(|e| CliError::BadInput(e.to_string()))?;
+    }
+    let robot =
+        Robot::load(config_dir, &scenario.robot).map_err(|e| CliError::BadInput(e.to_string()))?;
+    Ok((robot, scenario))
+}
+
+/// Runs the trial an experiment spec describes.
+pub fn run_spec(
+    config_dir: &Path,
+    spec: &TrialSpec,
+    trace: bool,
+) -> Result<(TrialResult, Option<TrialTrace>), CliError> {
+    let (robot, scenario) = load(config_dir, &spec.scenario, Some(spec.base_speed))?;
+    run_trial(
+        &robot,
+        &scenario,
+        spec.method,
+        spec.seed,
+        &RunnerConfig::default(),
+        trace,
+    )
+    .map_err(CliError::BadInput)
+}
+
+/// `motm trial`.
+pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
+    let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed)?;
+    let (result, _) = run_trial(
+        &robot,
+        &scenario,
+        args.method,
+        args.seed,
+        &RunnerConfig::default(),
+        false,
+    )
+    .map_err(CliError::BadInput)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string(&result).map_err(|e| CliError::Failed(e.to_string()))?
+        );
+    } else {
+        println!(
+            "{} with {} at {:.2} m/s, seed {}: {}",
+            scenario.name,
+            args.method,
+            scenario.base_speed,
+            args.seed,
+            match &result.failure {
+                None => "success".to_string(),
+                Some(reason) => format!("failed ({reason})"),
+            }
+        );
+        println!(
+            "task time {:.2} s, MTPH {:.1}, EE |a| mean {:.2} max {:.2} m/s² ({})",
+            result.task_time_s,
+            result.mtph,
+            result.ee_acc_mean,
+            result.ee_acc_max,
+            result.ee_acc_filter
+        );
+        println!(
+            "simulated {:.1} s in {:.2} s wall ({:.0}× real time)",
+            result.sim_time_s,
+            result.wall_time_s,
+            result.sim_time_s / result.wall_time_s.max(1e-9)
+        );
+    }
+    if result.success {
+        Ok(())
+    } else {
+        Err(CliError::Failed(format!(
+            "trial failed: {}",
+            result.failure.unwrap_or_default()
+        )))
+    }
+}

@@ -1,0 +1,443 @@
+//! The in-process runner: one trial of a scenario with every module in one process, stepping in
+//! lockstep simulated time as fast as the CPU allows.
+//!
+//! Rates (config values): physics 1 kHz, camera 30 Hz (with its latency), control 200 Hz. Each
+//! control cycle reads the sensors and the latest object estimate, runs the method's step
+//! function and sends the command to the world, exactly what the deployed processes do over
+//! shared memory.
+//!
+//! Object estimates: the current pick's cube is estimated by perception from the rendered palm
+//! image; until the first fix the scenario's position stands in (what a mission would be given),
+//! and when the cube leaves the view the last estimate is held. Containers and buttons are known
+//! positions. Perception is reset when a new pick starts, with the scenario position as its hint.
+
+use std::collections::VecDeque;
+use std::time::Instant;
+
+use motm_core::camera::CameraConfig;
+use motm_core::mission::{MissionTask, TaskKind};
+use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput};
+use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
+use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
+use motm_core::reactive::{ReactiveBaseline, ReactiveConfig, ReactiveInput};
+use motm_core::resolver::RedundancyResolver;
+use motm_core::{GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+use crate::experiment::{Method, TrialResult, TrialTrace};
+use crate::metrics::{AccelerationFilterConfig, AccelerationMeter};
+use crate::render::{CONTAINER_BLUE, PLATFORM_WOOD, PalmCamera, Scene, SceneBox};
+use crate::scenario::Scenario;
+use crate::world::{HardwareCommand, Outcome, World};
+
+/// Settings of the runner and of every method it can run.
+#[derive(Debug, Clone)]
+pub struct RunnerConfig {
+    /// Control rate, Hz.
+    pub control_rate_hz: f64,
+    /// Physics step, s.
+    pub physics_step: f64,
+    /// A trial times out after this many seconds plus `timeout_per_task` per task.
+    pub timeout_base: f64,
+    /// Extra time allowed per mission task, s.
+    pub timeout_per_task: f64,
+    /// Record one trace sample every this many control cycles.
+    pub trace_every: usize,
+    /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
+    pub camera: CameraConfig,
+    /// Perception.
+    pub perception: PerceptionConfig,
+    /// EE acceleration filter.
+    pub acceleration: AccelerationFilterConfig,
+    /// MotM.
+    pub motm: OnTheMoveConfig,
+    /// Reactive baseline.
+    pub reactive: ReactiveConfig,
+    /// Planning baseline.
+    pub planning: PlanningConfig,
+}
+
+impl Default for RunnerConfig {
+    fn default() -> Self {
+        Self {
+            control_rate_hz: 200.0,
+            physics_step: 0.001,
+            timeout_base: 30.0,
+            timeout_per_task: 40.0,
+            trace_every: 10,
+            camera: CameraConfig::default(),
+            perception: PerceptionConfig::default(),
+            acceleration: AccelerationFilterConfig::default(),
+            motm: OnTheMoveConfig::default(),
+            reactive: ReactiveConfig::default(),
+            planning: PlanningConfig::default(),
+        }
+    }
+}
+
+/// A method's controller, stepped at the control rate.
+enum Controller {
+    /// MotM.
+    Motm(Box<OnTheMove>),
+    /// The reactive baseline.
+    Reactive(Box<ReactiveBaseline>),
+    /// The planning baseline: the plan's tracker plus the QP that turns its EE twist into joint
+    /// velocities while the base follows the plan.
+    Planning(Box<PlanningController>, Box<RedundancyResolver>),
+}
+
+/// The scene the camera sees: the fixed layout plus the cubes where they are now.
+struct SceneBuilder {
+    fixed: Scene,
+    cube_size: f64,
+}
+
+impl SceneBuilder {
+    fn new(world: &World) -> Self {
+        let layout = world.layout();
+        let mut fixed = Scene::default();
+        for platform in &layout.platforms {
+            let rotation = UnitQuaternion::from_matrix(&platform.axes);
+            fixed.boxes.push(SceneBox {
+                pose: Isometry3::from_parts(Translation3::from(platform.center), rotation),
+                size: platform.half_extents * 2.0,
+                colour: PLATFORM_WOOD,
+            });
+        }
+        for container in &layout.containers {
+            let outer = 2.0 * (container.inner_half + container.wall);
+            fixed.add_container(
+                container.rim_center,
+                0.0,
+                outer,
+                outer,
+                container.wall,
+                CONTAINER_BLUE,
+            );
+        }
+        Self {
+            fixed,
+            cube_size: layout.cube_size,
+        }
+    }
+
+    fn scene(&self, world: &World) -> Scene {
+        let mut scene = self.fixed.clone();
+        for object in &world.truth().objects {
+            let mut cube = SceneBox::cube(object.position(), 0.0, self.cube_size);
+            cube.pose.rotation = object.pose.rotation;
+            scene.boxes.push(cube);
+        }
+        scene
+    }
+}
+
+/// Tracks the current task's target: perception for picks, known positions otherwise.
+struct TargetTracker {
+    tasks: Vec<MissionTask>,
+    perception: Perception,
+    config: PerceptionConfig,
+    task: Option<usize>,
+    /// Recent (time, estimated tool pose) pairs, to pair a frame with the pose at its stamp.
+    tool_history: VecDeque<(f64, Isometry3<f64>)>,
+}
+
+impl TargetTracker {
+    fn new(tasks: Vec<MissionTask>, config: PerceptionConfig, camera: &PalmCamera) -> Self {
+        Self {
+            tasks,
+            perception: Perception::new(config, camera.calibration()),
+            config,
+            task: None,
+            tool_history: VecDeque::new(),
+        }
+    }
+
+    /// Switches to task `index`, resetting perception for a new pick.
+    fn select(&mut self, index: usize, camera: &PalmCamera) {
+        if self.task != Some(index) {
+            self.task = Some(index);
+            self.perception = Perception::new(self.config, camera.calibration());
+        }
+    }
+
+    /// Records the estimated tool pose at time `t`.
+    fn record_tool(&mut self, t: f64, pose: Isometry3<f64>) {
+        self.tool_history.push_back((t, pose));
+        while self.tool_history.len() > 200 {
+            self.tool_history.pop_front();
+        }
+    }
+
+    /// Feeds one camera frame to perception (picks only).
+    fn observe(&mut self, image: &[u8], width: u32, height: u32, stamp: f64) {
+        let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
+            return;
+        };
+        if task.kind != TaskKind::Pick {
+            return;
+        }
+        let Some(&(_, tool_pose)) = self
+            .tool_history
+            .iter()
+            .min_by(|a, b| (a.0 - stamp).abs().total_cmp(&(b.0 - stamp).abs()))
+        else {
+            return;
+        };
+        self.perception.step(&PerceptionInput {
+            image,
+            width,
+            height,
+            stamp,
+            tool_pose,
+            object_height: task.position.z,
+            target_hint: Some(task.position),
+        });
+    }
+
+    /// The current task's target estimate.
+    fn target(&self) -> TargetEstimate {
+        let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
+            return TargetEstimate::fixed(Vector3::zeros());
+        };
+        let estimate = self.perception.estimate();
+        if task.kind == TaskKind::Pick && estimate.valid {
+            estimate.target()
+        } else {
+            TargetEstimate::fixed(task.position)
+        }
+    }
+}
+
+/// Runs one trial of `scenario` with `method`. `Err` only when the trial cannot be set up (e.g.
+/// the planning baseline on a scenario with more than one object).
+pub fn run_trial(
+    robot: &Robot,
+    scenario: &Scenario,
+    method: Method,
+    seed: u64,
+    config: &RunnerConfig,
+    record_trace: bool,
+) -> Result<(TrialResult, Option<TrialTrace>), String> {
+    let wall_start = Instant::now();
+    let tasks = scenario.mission_tasks();
+    let mut world = World::new(robot, scenario, seed);
+    let mut camera_config = config.camera;
+    camera_config.pixel_noise_std = scenario.noise.camera_pixel_std;
+    camera_config.extrinsic_error = scenario.noise.camera_extrinsic_error;
+    let mut camera = PalmCamera::new(&camera_config, seed ^ 0x5eed_ca3e_0000_0001);
+    let scenes = SceneBuilder::new(&world);
+    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
+    let start = scenario.start();
+    let mut motm_config = config.motm.clone();
+    motm_config.base.forward_speed = scenario.base_speed;
+    let mut controller = match method {
+        Method::Motm => Controller::Motm(Box::new(OnTheMove::new(
+            robot.clone(),
+            motm_config,
+            tasks.clone(),
+            Vector3::new(start.x, start.y, 0.0),
+        ))),
+        Method::Reactive => Controller::Reactive(Box::new(ReactiveBaseline::new(
+            robot.clone(),
+            config.reactive.clone(),
+            tasks.clone(),
+        ))),
+        Method::Planning => {
+            let [object] = scenario.objects.as_slice() else {
+                return Err(format!(
+                    "{}: the planning baseline plans one pick and place; this scenario has {} objects",
+                    scenario.path.display(),
+                    scenario.objects.len()
+                ));
+            };
+            let request = PlanRequest {
+                start_base: start,
+                start_base_speed: 0.0,
+                cube: Vector3::from(object.position),
+                container: Vector3::from(object.place),
+                base_speed: scenario.base_speed,
+            };
+            match PlanningController::from_request(robot, &request, &config.planning) {
+                Ok(tracker) => Controller::Planning(
+                    Box::new(tracker),
+                    Box::new(RedundancyResolver::for_robot(
+                        robot,
+                        config.motm.resolver.clone(),
+                    )),
+                ),
+                Err(e) => {
+                    let result = TrialResult {
+                        success: false,
+                        failure: Some(format!("plan_failed: {e}")),
+                        task_time_s: 0.0,
+                        mtph: 0.0,
+                        ee_acc_mean: 0.0,
+                        ee_acc_max: 0.0,
+                        ee_acc_filter: String::new(),
+                        sim_time_s: 0.0,
+                        wall_time_s: wall_start.elapsed().as_secs_f64(),
+                        round_trips_s: Vec::new(),
+                    };
+                    return Ok((result, None));
+                }
+            }
+        }
+    };
+
+    let control_dt = 1.0 / config.control_rate_hz;
+    let physics_per_control = (control_dt / config.physics_step).round().max(1.0) as usize;
+    let physics_dt = control_dt / physics_per_control as f64;
+    let timeout = config.timeout_base + config.timeout_per_task * tasks.len() as f64;
+    let mut meter = AccelerationMeter::new(&config.acceleration, control_dt);
+    let mut trace = record_trace.then(|| TrialTrace {
+        containers: world
+            .layout()
+            .containers
+            .iter()
+            .map(|c| (c.rim_center.x, c.rim_center.y))
+            .collect(),
+        objects: vec![Vec::new(); scenario.objects.len()],
+        ..TrialTrace::default()
+    });
+    let no_scene = Scene::default();
+    let mut cycle = 0usize;
+    let outcome = loop {
+        let sensors = world.sensors().clone();
+        let t = sensors.time;
+        if let Some(outcome) = world.outcome() {
+            break Some(outcome);
+        }
+        if t >= timeout {
+            break None;
+        }
+        // The tool pose the robot believes it has (odometry + joints), for perception.
+        let believed_tool = robot.tool_pose(&sensors.base_pose, &sensors.arm_q);
+        tracker.record_tool(t, believed_tool);
+        let task_index = match &controller {
+            Controller::Motm(c) => c.mission().task_index(),
+            Controller::Reactive(c) => c.task_index(),
+            Controller::Planning(..) => 0,
+        };
+        tracker.select(task_index.min(tasks.len().saturating_sub(1)), &camera);
+        let target = tracker.target();
+        let command = match &mut controller {
+            Controller::Motm(c) => {
+                let out = c.step(&OnTheMoveInput {
+                    t,
+                    dt: control_dt,
+                    base: sensors.base_pose,
+                    base_velocity: sensors.base_velocity,
+                    arm_q: &sensors.arm_q,
+                    gripper_opening: sensors.gripper_opening,
+                    target,
+                });
+                HardwareCommand {
+                    arm_qd: out.arm_qd,
+                    base: out.base,
+                    gripper: out.gripper,
+                }
+            }
+            Controller::Reactive(c) => {
+                let out = c.step(&ReactiveInput {
+                    t,
+                    base: sensors.base_pose,
+                    arm_q: &sensors.arm_q,
+                    gripper_opening: sensors.gripper_opening,
+                    target,
+                });
+                HardwareCommand {
+                    arm_qd: out.arm_qd,
+                    base: out.base,
+                    gripper: out.gripper,
+                }
+            }
+            Controller::Planning(tracker, resolver) => {
+                let state = RobotState {
+                    base: sensors.base_pose,
+                    base_velocity: sensors.base_velocity,
+                    arm_q: sensors.arm_q.clone(),
+                    tool_pose: believed_tool,
+                };
+                let plan = tracker.step(t, &state);
+                let resolved = resolver.resolve_motm(
+                    robot,
+                    &sensors.base_pose,
+                    &sensors.arm_q,
+                    plan.gripper_twist,
+                    1.0,
+                    Some(plan.base),
+                );
+                let gripper = if plan.progress == TaskProgress::Done {
+                    GripperCommand::Open
+                } else {
+                    plan.gripper
+                };
+                HardwareCommand {
+                    arm_qd: resolved.arm_qd,
+                    base: resolved.base,
+                    gripper,
+                }
+            }
+        };
+        for _ in 0..physics_per_control {
+            world.step(physics_dt, &command);
+            let now = world.truth().time;
+            let tool = world.truth().tool_pose;
+            // The scene is only built when a frame is captured.
+            let frame = if camera.next_capture() <= now {
+                camera.step(&scenes.scene(&world), &tool, now)
+            } else {
+                camera.step(&no_scene, &tool, now)
+            };
+            if let Some(frame) = frame {
+                tracker.observe(&frame.image, frame.width, frame.height, frame.stamp);
+            }
+        }
+        let truth = world.truth();
+        meter.push(truth.tool_pose.translation.vector);
+        if let Some(trace) = trace
+            .as_mut()
+            .filter(|_| cycle % config.trace_every.max(1) == 0)
+        {
+            trace.base.push((truth.base_pose.x, truth.base_pose.y));
+            let tool = truth.tool_pose.translation.vector;
+            trace.ee.push((tool.x, tool.y));
+            for (path, object) in trace.objects.iter_mut().zip(&truth.objects) {
+                let p = object.position();
+                path.push((p.x, p.y));
+            }
+        }
+        cycle += 1;
+    };
+    let truth = world.truth();
+    let sim_time = truth.time;
+    let (success, failure) = match outcome {
+        Some(Outcome::Success) => (true, None),
+        Some(failed) => (false, failed.failure().map(str::to_string)),
+        None => (false, Some("timeout".to_string())),
+    };
+    let mut placed: Vec<f64> = truth.objects.iter().filter_map(|o| o.placed_time).collect();
+    placed.sort_by(f64::total_cmp);
+    let round_trips_s = placed
+        .iter()
+        .scan(0.0, |last, &t| {
+            let trip = t - *last;
+            *last = t;
+            Some(trip)
+        })
+        .collect();
+    let result = TrialResult {
+        success,
+        failure,
+        task_time_s: sim_time,
+        mtph: if success { 3600.0 / sim_time } else { 0.0 },
+        ee_acc_mean: meter.mean(),
+        ee_acc_max: meter.max(),
+        ee_acc_filter: meter.description().to_string(),
+        sim_time_s: sim_time,
+        wall_time_s: wall_start.elapsed().as_secs_f64(),
+        round_trips_s,
+    };
+    Ok((result, trace))
+}
