@@ -214,7 +214,7 @@ fn manipulability_gradient_matches_finite_differences() {
 }
 
 #[test]
-fn ready_poses_put_the_tool_ahead_of_the_base_with_good_manipulability() {
+fn ready_poses_hold_the_tool_ahead_pointing_down_with_good_manipulability() {
     for name in ROBOT_NAMES {
         let robot = load(name);
         let ready = robot.config.ready_pose.clone();
@@ -230,6 +230,12 @@ fn ready_poses_put_the_tool_ahead_of_the_base_with_good_manipulability() {
         assert!(
             m > robot.config.manipulability_threshold,
             "{name}: ready-pose manipulability {m}"
+        );
+        // Within 0.15 rad of straight down (Frankie's qr from the paper tilts 0.1 rad).
+        let approach = fk.tool_pose.rotation * Vector3::z();
+        assert!(
+            approach.angle(&-Vector3::z()) < 0.15,
+            "{name}: ready tool approach axis {approach:?} does not point down"
         );
     }
 }

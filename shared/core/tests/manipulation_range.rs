@@ -9,8 +9,8 @@
 
 mod common;
 
-use motm_core::{BasePose, JointKind, Robot, manipulability_gradient};
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix5, Vector3};
+use motm_core::{BasePose, JointKind, JointLimits, Robot, manipulability_gradient};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6xX, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -21,9 +21,11 @@ const TABLE_HEIGHT: f64 = 0.45;
 /// Distance between the scanned targets, m; the edge is then refined by bisection to 1 mm.
 const SCAN_STEP: f64 = 0.02;
 /// Random start configurations tried per target, besides the ready pose and the neighbour's grasp.
-const RANDOM_SEEDS: usize = 6;
-/// Inverse-kinematics iterations per start configuration.
-const IK_ITERATIONS: usize = 300;
+const RANDOM_SEEDS: usize = 8;
+/// Inverse-kinematics iterations per start configuration that also climb manipulability.
+const CLIMB_ITERATIONS: usize = 400;
+/// Final iterations on the task alone, to converge after the climb.
+const SETTLE_ITERATIONS: usize = 60;
 /// Damping of the least-squares step.
 const DAMPING: f64 = 1e-3;
 /// Gain of the manipulability ascent in the task's null space.
@@ -68,20 +70,56 @@ fn approach_error(from: &Vector3<f64>) -> Vector3<f64> {
     }
 }
 
+/// One damped-least-squares step on the task rows vx, vy, vz, ωx, ωy (rotation about the vertical
+/// approach axis is free), plus manipulability ascent in the task's null space when `climb`.
+/// Joints at a limit that the step would push further are locked out of the step.
+fn limited_step(
+    jacobian: &Matrix6xX<f64>,
+    error: &DVector<f64>,
+    climb: bool,
+    q: &[f64],
+    limits: &[JointLimits],
+) -> Option<DVector<f64>> {
+    let n = q.len();
+    let (_, gradient) = manipulability_gradient(jacobian);
+    let mut locked = vec![false; n];
+    loop {
+        let task = DMatrix::from_fn(5, n, |r, c| if locked[c] { 0.0 } else { jacobian[(r, c)] });
+        let damped = &task * task.transpose() + DMatrix::identity(5, 5) * DAMPING * DAMPING;
+        let pseudo_inverse = task.transpose() * damped.try_inverse()?;
+        let mut step = &pseudo_inverse * error;
+        if climb {
+            let free_gradient =
+                DVector::from_fn(n, |c, _| if locked[c] { 0.0 } else { gradient[c] });
+            let null_space = DMatrix::identity(n, n) - &pseudo_inverse * &task;
+            step += null_space * free_gradient * NULL_SPACE_GAIN;
+        }
+        let mut newly_locked = false;
+        for c in 0..n {
+            let at_lower = q[c] <= limits[c].position_min && step[c] < 0.0;
+            let at_upper = q[c] >= limits[c].position_max && step[c] > 0.0;
+            if !locked[c] && (at_lower || at_upper) {
+                locked[c] = true;
+                newly_locked = true;
+            }
+        }
+        if !newly_locked {
+            return Some(step);
+        }
+    }
+}
+
 /// Searches a top-down grasp of `target` (world frame, base at the origin) from `seed`.
 fn top_down_grasp(robot: &Robot, target: &Vector3<f64>, seed: &[f64]) -> Option<Grasp> {
     let limits: Vec<_> = robot.arm_joints().map(|j| j.limits).collect();
-    let n = robot.arm_dof();
     let mut q = seed.to_vec();
     let mut converged = false;
-    for _ in 0..IK_ITERATIONS {
+    for iteration in 0..CLIMB_ITERATIONS + SETTLE_ITERATIONS {
         let fk = robot.forward(&BasePose::default(), &q);
         let jacobian = Robot::arm_jacobian(&fk.jacobian);
         let position_error = target - fk.tool_pose.translation.vector;
         let angle_error = approach_error(&(fk.tool_pose.rotation * Vector3::z()));
         converged = position_error.norm() < POSITION_TOLERANCE && angle_error.norm() < ANGLE_TOLERANCE;
-        // Task rows: vx, vy, vz, ωx, ωy (rotation about the vertical approach axis is free).
-        let task = DMatrix::from_fn(5, n, |r, c| jacobian[(r, c)]);
         let error = DVector::from_column_slice(&[
             position_error.x,
             position_error.y,
@@ -89,15 +127,8 @@ fn top_down_grasp(robot: &Robot, target: &Vector3<f64>, seed: &[f64]) -> Option<
             angle_error.x,
             angle_error.y,
         ]);
-        let damped: Matrix5<f64> =
-            Matrix5::from_iterator((&task * task.transpose()).iter().copied())
-                + Matrix5::identity() * DAMPING * DAMPING;
-        let inverse = damped.try_inverse()?;
-        let inverse = DMatrix::from_iterator(5, 5, inverse.iter().copied());
-        let pseudo_inverse = task.transpose() * inverse;
-        let (_, gradient) = manipulability_gradient(&jacobian);
-        let null_space = DMatrix::identity(n, n) - &pseudo_inverse * &task;
-        let mut step = &pseudo_inverse * error + null_space * gradient * NULL_SPACE_GAIN;
+        let climb = iteration < CLIMB_ITERATIONS;
+        let mut step = limited_step(&jacobian, &error, climb, &q, &limits)?;
         let largest = step.amax();
         if largest > MAX_STEP {
             step *= MAX_STEP / largest;
@@ -180,6 +211,7 @@ fn manipulation_ranges_match_the_models() {
     let frankie = load("frankie");
     let frankie_scan = scan(&frankie, frankie.config.manipulability_threshold);
     let fraction = frankie.config.manipulability_threshold / frankie_scan.peak;
+    let mut problems = Vec::new();
     for name in motm_core::ROBOT_NAMES {
         let robot = load(name);
         let threshold = robot.config.manipulability_threshold;
@@ -198,17 +230,19 @@ fn manipulation_ranges_match_the_models() {
             found.range,
             robot.config.manipulation_range
         );
-        assert!(
-            (found.range - robot.config.manipulation_range).abs() < 0.01,
-            "{name}: manipulation range is {:.3} m, config says {}",
-            found.range,
-            robot.config.manipulation_range
-        );
-        assert!(
-            (threshold / found.peak - fraction).abs() < 0.01,
-            "{name}: threshold {threshold} is {:.3} of the peak {:.4}; Frankie's is {fraction:.3}",
-            threshold / found.peak,
-            found.peak
-        );
+        if (found.range - robot.config.manipulation_range).abs() >= 0.01 {
+            problems.push(format!(
+                "{name}: manipulation range is {:.3} m, config says {}",
+                found.range, robot.config.manipulation_range
+            ));
+        }
+        if (threshold / found.peak - fraction).abs() >= 0.01 {
+            problems.push(format!(
+                "{name}: threshold {threshold} is {:.3} of the peak {:.4}; Frankie's is {fraction:.3}",
+                threshold / found.peak,
+                found.peak
+            ));
+        }
     }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
