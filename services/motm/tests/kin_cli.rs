@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use motm_core::{BasePose, Robot};
 use serde_json::Value;
 
 /// The repository's `config/` folder.
@@ -48,14 +49,24 @@ fn numbers(value: &Value) -> Vec<f64> {
 }
 
 fn matrix(value: &Value) -> Vec<Vec<f64>> {
-    value.as_array().expect("rows").iter().map(numbers).collect()
+    value
+        .as_array()
+        .expect("rows")
+        .iter()
+        .map(numbers)
+        .collect()
 }
 
 #[test]
 fn frankie_reference_as_json() {
     let out = kin_json(
         "frankie",
-        &["--base", "0,0,0", "--q", "0,-0.3,0,-2.2,0,2.0,0.7853981633974483"],
+        &[
+            "--base",
+            "0,0,0",
+            "--q",
+            "0,-0.3,0,-2.2,0,2.0,0.7853981633974483",
+        ],
     );
     let p = numbers(&out["position"]);
     let expected = [0.634, 0.0, 0.7926];
@@ -76,12 +87,32 @@ fn frankie_reference_as_json() {
             assert!((dot - identity).abs() < 1e-9, "rotation not orthonormal");
         }
     }
-    // At qr the gripper points straight down: tool z (third column) is −world z.
-    assert!((rotation[2][2] + 1.0).abs() < 1e-3, "{rotation:?}");
+    // Row-major and equal to the library's rotation; at qr the gripper points (nearly) down.
+    let robot = Robot::load(&config_dir(), "frankie").unwrap();
+    let qr = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, std::f64::consts::FRAC_PI_4];
+    let fk = robot.forward(&BasePose::default(), &qr);
+    let expected_rotation = fk.tool_pose.rotation.to_rotation_matrix();
+    for (i, row) in rotation.iter().enumerate() {
+        for (j, value) in row.iter().enumerate() {
+            assert!(
+                (value - expected_rotation[(i, j)]).abs() < 1e-9,
+                "{rotation:?}"
+            );
+        }
+    }
+    assert!(rotation[2][2] < -0.99, "{rotation:?}");
 
     let jacobian = matrix(&out["jacobian"]);
     assert_eq!(jacobian.len(), 6);
     assert!(jacobian.iter().all(|row| row.len() == 9));
+    for (i, row) in jacobian.iter().enumerate() {
+        for (j, value) in row.iter().enumerate() {
+            assert!(
+                (value - fk.jacobian[(i, j)]).abs() < 1e-9,
+                "jacobian[{i}][{j}]"
+            );
+        }
+    }
     // Base columns (ALGORITHMS.md §1): ω column [−p.y, p.x, 0, 0, 0, 1], v column [1, 0, 0, 0, 0, 0].
     let column = |c: usize| -> Vec<f64> { jacobian.iter().map(|row| row[c]).collect() };
     let expected_omega = [-p[1], p[0], 0.0, 0.0, 0.0, 1.0];
@@ -98,7 +129,12 @@ fn frankie_reference_as_json() {
 fn base_pose_moves_the_tool() {
     let out = kin_json(
         "frankie",
-        &["--base", "1,2,1.5707963267948966", "--q", "0,-0.3,0,-2.2,0,2.0,0.7853981633974483"],
+        &[
+            "--base",
+            "1,2,1.5707963267948966",
+            "--q",
+            "0,-0.3,0,-2.2,0,2.0,0.7853981633974483",
+        ],
     );
     let p = numbers(&out["position"]);
     for (a, b) in p.iter().zip([1.0, 2.634, 0.7926]) {
@@ -115,7 +151,10 @@ fn fetch_and_husky_ur5_work_at_their_ready_pose() {
         assert!(p[0] > 0.3, "{robot} tool at {p:?}");
         let jacobian = matrix(&out["jacobian"]);
         assert_eq!(jacobian.len(), 6);
-        assert!(jacobian.iter().all(|row| row.len() == 2 + arm_dof), "{robot}");
+        assert!(
+            jacobian.iter().all(|row| row.len() == 2 + arm_dof),
+            "{robot}"
+        );
         let m = out["manipulability"].as_f64().unwrap();
         assert!(m > 0.01, "{robot} manipulability {m}");
     }
@@ -124,7 +163,13 @@ fn fetch_and_husky_ur5_work_at_their_ready_pose() {
 #[test]
 fn human_readable_output_names_the_robot() {
     let config = config_dir();
-    let out = motm(&["--config-dir", config.to_str().unwrap(), "kin", "--robot", "husky_ur5"]);
+    let out = motm(&[
+        "--config-dir",
+        config.to_str().unwrap(),
+        "kin",
+        "--robot",
+        "husky_ur5",
+    ]);
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("husky_ur5"), "{text}");
@@ -134,7 +179,13 @@ fn human_readable_output_names_the_robot() {
 #[test]
 fn unknown_robot_exits_with_code_2_and_names_the_file() {
     let config = config_dir();
-    let out = motm(&["--config-dir", config.to_str().unwrap(), "kin", "--robot", "turtlebot"]);
+    let out = motm(&[
+        "--config-dir",
+        config.to_str().unwrap(),
+        "kin",
+        "--robot",
+        "turtlebot",
+    ]);
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("turtlebot.toml"), "{stderr}");
@@ -148,7 +199,11 @@ fn broken_urdf_exits_with_code_2_and_names_the_file_and_element() {
     let robots = dir.join("robots");
     std::fs::create_dir_all(&robots).unwrap();
     let shipped = config_dir().join("robots");
-    std::fs::copy(shipped.join("husky_ur5.toml"), robots.join("husky_ur5.toml")).unwrap();
+    std::fs::copy(
+        shipped.join("husky_ur5.toml"),
+        robots.join("husky_ur5.toml"),
+    )
+    .unwrap();
     let urdf = std::fs::read_to_string(shipped.join("husky_ur5.urdf")).unwrap();
     let broken = urdf.replace(
         "<origin xyz=\"-0.425 0 0\" rpy=\"0 0 0\"/>",
@@ -157,11 +212,21 @@ fn broken_urdf_exits_with_code_2_and_names_the_file_and_element() {
     assert_ne!(broken, urdf);
     std::fs::write(robots.join("husky_ur5.urdf"), broken).unwrap();
 
-    let out = motm(&["--config-dir", dir.to_str().unwrap(), "kin", "--robot", "husky_ur5", "--json"]);
+    let out = motm(&[
+        "--config-dir",
+        dir.to_str().unwrap(),
+        "kin",
+        "--robot",
+        "husky_ur5",
+        "--json",
+    ]);
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("husky_ur5.urdf"), "{stderr}");
-    assert!(stderr.contains("joint 'ur5_elbow' <origin xyz>"), "{stderr}");
+    assert!(
+        stderr.contains("joint 'ur5_elbow' <origin xyz>"),
+        "{stderr}"
+    );
     assert!(stderr.contains("'zero' is not a number"), "{stderr}");
     assert!(out.stdout.is_empty());
 }
@@ -169,7 +234,15 @@ fn broken_urdf_exits_with_code_2_and_names_the_file_and_element() {
 #[test]
 fn wrong_number_of_joints_exits_with_code_2() {
     let config = config_dir();
-    let out = motm(&["--config-dir", config.to_str().unwrap(), "kin", "--robot", "fetch", "--q", "0,0,0"]);
+    let out = motm(&[
+        "--config-dir",
+        config.to_str().unwrap(),
+        "kin",
+        "--robot",
+        "fetch",
+        "--q",
+        "0,0,0",
+    ]);
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("--q"), "{stderr}");

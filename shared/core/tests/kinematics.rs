@@ -126,24 +126,27 @@ fn base_columns_follow_the_algorithms_formulas() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     for name in ROBOT_NAMES {
         let robot = load(name);
-        let base = BasePose::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), 0.7);
+        let base = BasePose::new(
+            rng.random_range(-2.0..2.0),
+            rng.random_range(-2.0..2.0),
+            0.7,
+        );
         let fk = robot.forward(&base, &random_arm_q(&mut rng, &robot));
         let p = fk.tool_pose.translation.vector;
         let expected = Matrix6xX::from_column_slice(&[
-                -(p.y - base.y),
-                p.x - base.x,
-                0.0,
-                0.0,
-                0.0,
-                1.0,
-                base.yaw.cos(),
-                base.yaw.sin(),
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-            ],
-        );
+            -(p.y - base.y),
+            p.x - base.x,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+            base.yaw.cos(),
+            base.yaw.sin(),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        ]);
         let actual = fk.jacobian.columns(0, 2).into_owned();
         assert!((actual - expected).abs().max() < 1e-12, "{name}");
     }
@@ -273,10 +276,7 @@ fn urdf_with_a_missing_joint_names_the_file_and_link() {
     });
     let msg = load_error(&dir, "frankie");
     let file = dir.join("robots").join("frankie.urdf");
-    assert!(
-        msg.starts_with(&format!("{}: ", file.display())),
-        "{msg}"
-    );
+    assert!(msg.starts_with(&format!("{}: ", file.display())), "{msg}");
     assert!(msg.contains("<link name=\"panda_link4\">"), "{msg}");
     assert!(msg.contains("missing joint"), "{msg}");
 }
@@ -288,10 +288,7 @@ fn urdf_with_a_bad_number_names_the_file_joint_and_attribute() {
     });
     let msg = load_error(&dir, "fetch");
     let file = dir.join("robots").join("fetch.urdf");
-    assert!(
-        msg.starts_with(&format!("{}: ", file.display())),
-        "{msg}"
-    );
+    assert!(msg.starts_with(&format!("{}: ", file.display())), "{msg}");
     assert!(
         msg.contains("joint 'elbow_flex_joint' <limit lower>"),
         "{msg}"

@@ -48,7 +48,13 @@ struct Grasp {
 fn arm_base(robot: &Robot, arm_q: &[f64]) -> Vector3<f64> {
     let q = robot.full_q(arm_q);
     let mut frame = Isometry3::identity();
-    for (joint, &qi) in robot.chain.joints.iter().zip(&q).skip(motm_core::BASE_JOINTS) {
+    for (joint, &qi) in robot
+        .chain
+        .joints
+        .iter()
+        .zip(&q)
+        .skip(motm_core::BASE_JOINTS)
+    {
         frame *= joint.origin;
         if joint.kind == JointKind::Revolute {
             return frame.translation.vector;
@@ -119,7 +125,8 @@ fn top_down_grasp(robot: &Robot, target: &Vector3<f64>, seed: &[f64]) -> Option<
         let jacobian = Robot::arm_jacobian(&fk.jacobian);
         let position_error = target - fk.tool_pose.translation.vector;
         let angle_error = approach_error(&(fk.tool_pose.rotation * Vector3::z()));
-        converged = position_error.norm() < POSITION_TOLERANCE && angle_error.norm() < ANGLE_TOLERANCE;
+        converged =
+            position_error.norm() < POSITION_TOLERANCE && angle_error.norm() < ANGLE_TOLERANCE;
         let error = DVector::from_column_slice(&[
             position_error.x,
             position_error.y,
