@@ -109,6 +109,21 @@ impl Robot {
                 ));
             }
         }
+        for (key, value) in [
+            (
+                "manipulability_threshold",
+                self.config.manipulability_threshold,
+            ),
+            ("manipulation_range", self.config.manipulation_range),
+        ] {
+            if !(value > 0.0 && value.is_finite()) {
+                return Err(ModelError::invalid(
+                    &self.config_path,
+                    key,
+                    format!("must be positive and finite, got {value}"),
+                ));
+            }
+        }
         if self.config.ready_pose.len() != self.arm_dof() {
             return Err(ModelError::invalid(
                 &self.config_path,
