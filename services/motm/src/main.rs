@@ -2,6 +2,8 @@
 
 mod config_dir;
 mod kin;
+mod plots;
+mod report;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -10,6 +12,36 @@ use clap::{Parser, Subcommand};
 
 /// Exit code for bad input: a bad file, key, value or name.
 pub const EXIT_BAD_INPUT: u8 = 2;
+
+/// Exit code for a run that worked but whose task failed, or that failed at run time.
+pub const EXIT_FAILED: u8 = 1;
+
+/// Why a command failed; decides the exit code.
+#[derive(Debug)]
+pub enum CliError {
+    /// Bad input: a bad file, key, value or name (exit code 2). Nothing was run.
+    BadInput(String),
+    /// The command ran but failed (exit code 1).
+    Failed(String),
+}
+
+impl CliError {
+    /// The process exit code for this error.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            CliError::BadInput(_) => EXIT_BAD_INPUT,
+            CliError::Failed(_) => EXIT_FAILED,
+        }
+    }
+}
+
+impl std::fmt::Display for CliError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CliError::BadInput(m) | CliError::Failed(m) => f.write_str(m),
+        }
+    }
+}
 
 /// Reactive mobile manipulation on-the-move.
 #[derive(Parser)]
@@ -39,13 +71,13 @@ fn main() -> ExitCode {
     };
     let config_dir = config_dir::resolve(cli.config_dir);
     let result = match cli.command {
-        Command::Kin(args) => kin::run(&config_dir, &args),
+        Command::Kin(args) => kin::run(&config_dir, &args).map_err(CliError::BadInput),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("motm: {e}");
-            ExitCode::from(EXIT_BAD_INPUT)
+            ExitCode::from(e.exit_code())
         }
     }
 }

@@ -4,4 +4,5 @@
 //! with realistic imperfections, objects, a gripper with a grasp model, and a palm camera that
 //! renders real images. Every random draw comes from a seeded RNG, so a scenario and a seed give
 //! the same result bit for bit.
+pub mod experiment;
 pub mod metrics;

@@ -1,0 +1,887 @@
+//! The MotM base controller (paper section III-B.1; ALGORITHMS.md §2 "Base controller").
+//!
+//! Each step it
+//! 1. computes the closest-approach pose ξ_C: the tangent point from the base to the circle of
+//!    radius r_C around the target, on the side that bends toward the next target;
+//! 2. drives toward ξ_C with Corke's polar controller modified for a constant forward speed v_F:
+//!    `v = v_F`, `ω = (k_α·α + k_β·β)·v_F/ρ`;
+//! 3. estimates t_R, the time until the target is within the robot's manipulation range of the
+//!    arm base, and the base pose at that moment.
+//!
+//! Everything is recomputed from the latest estimates every step, so a moving target is followed.
+//! Once the base has gone by the target (the "passed" latch) it steers straight for the next
+//! target instead.
+//!
+//! Choices (each a [`BaseControllerConfig`] value where it is a number):
+//! - **Heading of ξ_C**: toward the next target, as ALGORITHMS.md says; the tangent direction is
+//!   the alternative ([`ApproachHeading`]).
+//! - **Side**: the tangent point on the side of the line base→target where the next target lies,
+//!   with hysteresis ([`BaseControllerConfig::side_hysteresis`]).
+//! - **Passed latch**: set when the base is within r_C of the target, or the target is abeam or
+//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, the
+//!   goal is the next target with the heading pointing at it (β = 0), and t_R is 0.
+//! - **β sign**: Corke's `β = θ_goal − ψ`, the convention under which k_α > 1, k_β < 0 is stable.
+//! - **t_R path model**: straight to ξ_C, then straight on along ξ_C's heading, at v_F, with the
+//!   target moving at its estimated velocity; "in range" is the horizontal distance from the arm
+//!   base (first arm joint) to the target within the robot's `manipulation_range`.
+//! - **Limits**: v = min(v_F, v_max) and ω saturated at ±ω_max, from the two virtual base joints.
+
+use std::path::Path;
+
+use nalgebra::{Rotation2, Vector2};
+use serde::Deserialize;
+
+use crate::error::ModelError;
+use crate::input_check::{NonFiniteInput, ensure_finite};
+use crate::kinematics::BasePose;
+use crate::reach_range::arm_base_in_base_frame;
+use crate::robot::Robot;
+use crate::types::{BaseVelocity, TargetEstimate, wrap_angle};
+
+/// Heading of the closest-approach pose ξ_C.
+///
+/// Both choices pass a static or slowly moving target at r_C to within a few millimetres in the
+/// unicycle tests below, because ξ_C is recomputed every step: the base keeps re-aiming at the
+/// tangent point as it moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ApproachHeading {
+    /// Toward the next target, as in ALGORITHMS.md (the default): the base is already turning
+    /// toward the next target as it goes by.
+    #[default]
+    TowardNext,
+    /// Along the tangent to the r_C circle (the direction from the base to ξ_C): the base goes by
+    /// the target on a straight line and turns toward the next target only once it has passed.
+    Tangent,
+}
+
+/// On which side of the target the base passes, seen along its direction of travel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PassSide {
+    /// The base passes to the left of the target (the target is on the base's right); chosen
+    /// when the next target lies to the left of the line from the base to the target.
+    #[default]
+    Left,
+    /// The base passes to the right of the target (the target is on the base's left).
+    Right,
+}
+
+impl PassSide {
+    /// +1 for [`PassSide::Left`], −1 for [`PassSide::Right`]: the sign of the tangent angle γ.
+    pub fn sign(self) -> f64 {
+        match self {
+            Self::Left => 1.0,
+            Self::Right => -1.0,
+        }
+    }
+}
+
+/// Tunables of the base controller (the `[base_controller]` table of a controller config).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BaseControllerConfig {
+    /// Constant forward speed v_F, m/s (clamped to the base's speed limit).
+    pub forward_speed: f64,
+    /// Closest-approach radius r_C = r_R + r_P = 0.25 + 0.35 m.
+    pub closest_approach_radius: f64,
+    /// Polar-controller gain on α (stable for k_α > 1).
+    pub k_alpha: f64,
+    /// Polar-controller gain on β (stable for k_β < 0).
+    pub k_beta: f64,
+    /// Lower clamp on ρ, the distance to the goal pose, in `ω = (k_α·α + k_β·β)·v_F/ρ`, m.
+    pub min_goal_distance: f64,
+    /// Heading of ξ_C.
+    pub approach_heading: ApproachHeading,
+    /// Side-choice hysteresis. The bend at the target is `b = sin δ`, δ being the turn from the
+    /// direction base→target to the direction target→next. The side switches to the left only
+    /// when `b > side_hysteresis` and to the right only when `b < −side_hysteresis`; in between
+    /// the previous side is kept (Left initially). 0.1 ≈ a 6° turn. Passing on a side also turns
+    /// δ further toward that side, so once committed the choice reinforces itself; the band
+    /// only stops noise on a nearly straight or U-turn (δ ≈ 0 or ±π) course from flipping it.
+    pub side_hysteresis: f64,
+    /// The "passed" latch is set when the base is within r_C of the target, or when the target is
+    /// abeam or behind the base (no component ahead) while within r_C plus this margin, m.
+    pub pass_margin: f64,
+}
+
+impl Default for BaseControllerConfig {
+    fn default() -> Self {
+        Self {
+            forward_speed: 0.3,
+            closest_approach_radius: 0.6,
+            k_alpha: 4.0,
+            k_beta: -1.5,
+            min_goal_distance: 0.2,
+            approach_heading: ApproachHeading::default(),
+            side_hysteresis: 0.1,
+            pass_margin: 0.3,
+        }
+    }
+}
+
+impl BaseControllerConfig {
+    /// Checks the values; `file` is the configuration file they came from, named in the error.
+    pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
+        let checks = [
+            ("forward_speed", self.forward_speed > 0.0),
+            (
+                "closest_approach_radius",
+                self.closest_approach_radius > 0.0,
+            ),
+            ("k_alpha", self.k_alpha > 1.0),
+            ("k_beta", self.k_beta < 0.0),
+            ("min_goal_distance", self.min_goal_distance > 0.0),
+            (
+                "side_hysteresis",
+                (0.0..1.0).contains(&self.side_hysteresis),
+            ),
+            ("pass_margin", self.pass_margin >= 0.0),
+        ];
+        for (key, ok) in checks {
+            if !ok {
+                return Err(ModelError::invalid(
+                    file,
+                    format!("base_controller.{key}"),
+                    "out of range (need v_F > 0, r_C > 0, k_α > 1, k_β < 0, \
+                     min_goal_distance > 0, 0 ≤ side_hysteresis < 1, pass_margin ≥ 0)",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What the base controller reads each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaseControllerInput {
+    /// Index of the current mission task. When it changes, the side choice and the "passed"
+    /// latch start afresh.
+    pub task_index: usize,
+    /// Current base pose (odometry).
+    pub base: BasePose,
+    /// Latest estimate of the current target (only x and y are used for driving; the velocity
+    /// feeds the time-to-range estimate).
+    pub target: TargetEstimate,
+    /// Position of the next target (x and y are used).
+    pub next_target: nalgebra::Vector3<f64>,
+}
+
+/// What the base controller produces each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaseControllerOutput {
+    /// Base velocity command, within the base's v and ω limits.
+    pub command: BaseVelocity,
+    /// Closest-approach pose ξ_C (kept at its last value once the target is passed; the base
+    /// pose at the task's first step if the target was already passed then).
+    pub closest_approach: BasePose,
+    /// The side on which the base passes the target.
+    pub side: PassSide,
+    /// t_R: predicted time until the target is within manipulation range of the arm base, s.
+    /// Zero once it is in range or passed. If the predicted path never brings it within range,
+    /// the time of the closest predicted approach.
+    pub time_to_range: f64,
+    /// Predicted base pose at `time_to_range` (the current pose when that is zero).
+    pub range_entry_pose: BasePose,
+    /// True once the base has gone by the target (latched until the task changes).
+    pub passed: bool,
+}
+
+/// The robot properties the base controller needs, taken from the model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaseModel {
+    /// Horizontal distance from the arm base within which the target can be manipulated, m.
+    pub manipulation_range: f64,
+    /// Horizontal position of the arm base (first arm joint) in the base frame, m.
+    pub arm_base: Vector2<f64>,
+    /// Base forward-speed limit, m/s.
+    pub max_speed: f64,
+    /// Base yaw-rate limit, rad/s.
+    pub max_yaw_rate: f64,
+}
+
+impl BaseModel {
+    /// Reads the properties from a robot model: the manipulation range from its configuration,
+    /// the arm base from its chain, and the v and ω limits from its two virtual base joints.
+    pub fn from_robot(robot: &Robot) -> Self {
+        let limits = robot.limits();
+        let arm_base = arm_base_in_base_frame(robot);
+        Self {
+            manipulation_range: robot.config.manipulation_range,
+            arm_base: Vector2::new(arm_base.x, arm_base.y),
+            max_speed: limits[1].velocity,
+            max_yaw_rate: limits[0].velocity,
+        }
+    }
+}
+
+/// The base controller: a step function plus the small state it latches between steps.
+#[derive(Debug, Clone)]
+pub struct BaseController {
+    config: BaseControllerConfig,
+    model: BaseModel,
+    task_index: Option<usize>,
+    side: PassSide,
+    passed: bool,
+    closest_approach: BasePose,
+}
+
+/// Output of the polar controller for one goal pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PolarCommand {
+    /// Yaw-rate command (before saturation), rad/s.
+    pub omega: f64,
+    /// Distance to the goal, m.
+    pub rho: f64,
+    /// Angle from the current heading to the vector toward the goal, rad.
+    pub alpha: f64,
+    /// `wrap(θ_goal − ψ)`, ψ being the direction of the vector toward the goal, rad.
+    pub beta: f64,
+}
+
+/// Floor under the configured ρ clamp, m, so that a zero `min_goal_distance` cannot divide by 0.
+const MIN_GOAL_DISTANCE: f64 = 1e-3;
+
+/// Corke's polar controller at constant forward speed: `ω = (k_α·α + k_β·β)·v/max(ρ, ρ_min)`.
+///
+/// β uses Corke's sign convention, `β = θ_goal − ψ` (ψ: direction of the vector to the goal),
+/// for which k_α > 1, k_β < 0 is the stable region quoted in the paper.
+pub fn polar_control(
+    base: &BasePose,
+    goal: &BasePose,
+    speed: f64,
+    config: &BaseControllerConfig,
+) -> PolarCommand {
+    let to_goal = Vector2::new(goal.x - base.x, goal.y - base.y);
+    let rho = to_goal.norm();
+    let psi = to_goal.y.atan2(to_goal.x);
+    let alpha = wrap_angle(psi - base.yaw);
+    let beta = wrap_angle(goal.yaw - psi);
+    let omega = (config.k_alpha * alpha + config.k_beta * beta) * speed
+        / rho.max(config.min_goal_distance).max(MIN_GOAL_DISTANCE);
+    PolarCommand {
+        omega,
+        rho,
+        alpha,
+        beta,
+    }
+}
+
+/// The tangent from `base` to the circle of radius `radius` around `target` on `side`: the
+/// tangent point and the tangent direction. `None` when the base is on or inside the circle.
+pub fn tangent_point(
+    base: Vector2<f64>,
+    target: Vector2<f64>,
+    radius: f64,
+    side: PassSide,
+) -> Option<(Vector2<f64>, f64)> {
+    let to_target = target - base;
+    let d = to_target.norm();
+    if d <= radius {
+        return None;
+    }
+    let phi = to_target.y.atan2(to_target.x);
+    let gamma = (radius / d).asin();
+    let rho = (d * d - radius * radius).sqrt();
+    let direction = phi + side.sign() * gamma;
+    Some((
+        base + rho * Vector2::new(direction.cos(), direction.sin()),
+        wrap_angle(direction),
+    ))
+}
+
+fn xy(v: &nalgebra::Vector3<f64>) -> Vector2<f64> {
+    Vector2::new(v.x, v.y)
+}
+
+impl BaseController {
+    /// A controller with `config` for the robot described by `model`.
+    pub fn new(config: BaseControllerConfig, model: BaseModel) -> Self {
+        Self {
+            config,
+            model,
+            task_index: None,
+            side: PassSide::Left,
+            passed: false,
+            closest_approach: BasePose::default(),
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &BaseControllerConfig {
+        &self.config
+    }
+
+    /// The robot properties in use.
+    pub fn model(&self) -> &BaseModel {
+        &self.model
+    }
+
+    /// The forward speed actually commanded: v_F within the base's speed limit.
+    pub fn speed(&self) -> f64 {
+        self.config.forward_speed.min(self.model.max_speed)
+    }
+
+    /// One control step. Errors (and changes no state) if an input is not finite.
+    pub fn step(
+        &mut self,
+        input: &BaseControllerInput,
+    ) -> Result<BaseControllerOutput, NonFiniteInput> {
+        let b = &input.base;
+        ensure_finite("base", &[b.x, b.y, b.yaw])?;
+        ensure_finite("target.position", input.target.position.iter())?;
+        ensure_finite("target.velocity", input.target.velocity.iter())?;
+        ensure_finite("next_target", input.next_target.iter())?;
+
+        if self.task_index != Some(input.task_index) {
+            self.task_index = Some(input.task_index);
+            self.passed = false;
+            self.side = PassSide::Left;
+            self.closest_approach = input.base;
+            self.update_side(input, true);
+        } else {
+            self.update_side(input, false);
+        }
+
+        let base_xy = Vector2::new(b.x, b.y);
+        let target = xy(&input.target.position);
+        let next = xy(&input.next_target);
+        let to_target = target - base_xy;
+        let heading = Vector2::new(b.yaw.cos(), b.yaw.sin());
+        let r_c = self.config.closest_approach_radius;
+        if !self.passed {
+            let d = to_target.norm();
+            let abeam_or_behind = to_target.dot(&heading) <= 0.0;
+            self.passed = d <= r_c || (abeam_or_behind && d < r_c + self.config.pass_margin);
+        }
+        let speed = self.speed();
+
+        let tangent = if self.passed {
+            None
+        } else {
+            tangent_point(base_xy, target, r_c, self.side)
+        };
+        let goal = match tangent {
+            Some((point, tangent_heading)) => {
+                let yaw = match self.config.approach_heading {
+                    ApproachHeading::Tangent => tangent_heading,
+                    ApproachHeading::TowardNext => (next.y - point.y).atan2(next.x - point.x),
+                };
+                self.closest_approach = BasePose::new(point.x, point.y, yaw);
+                self.closest_approach
+            }
+            None => {
+                // Passed: steer straight for the next target (β = 0).
+                let yaw = (next.y - b.y).atan2(next.x - b.x);
+                BasePose::new(next.x, next.y, yaw)
+            }
+        };
+        let polar = polar_control(b, &goal, speed, &self.config);
+        let omega = polar
+            .omega
+            .clamp(-self.model.max_yaw_rate, self.model.max_yaw_rate);
+
+        let (time_to_range, range_entry_pose) = if self.passed {
+            (0.0, *b)
+        } else {
+            self.time_to_range(b, &goal, &input.target, speed)
+        };
+
+        Ok(BaseControllerOutput {
+            command: BaseVelocity { v: speed, omega },
+            closest_approach: self.closest_approach,
+            side: self.side,
+            time_to_range,
+            range_entry_pose,
+            passed: self.passed,
+        })
+    }
+
+    fn update_side(&mut self, input: &BaseControllerInput, fresh: bool) {
+        if self.passed {
+            return;
+        }
+        let base_xy = Vector2::new(input.base.x, input.base.y);
+        let target = xy(&input.target.position);
+        let next = xy(&input.next_target);
+        let (Some(a), Some(c)) = (
+            (target - base_xy).try_normalize(1e-9),
+            (next - target).try_normalize(1e-9),
+        ) else {
+            return;
+        };
+        let bend = a.perp(&c);
+        let band = if fresh {
+            0.0
+        } else {
+            self.config.side_hysteresis
+        };
+        if bend > band {
+            self.side = PassSide::Left;
+        } else if bend < -band {
+            self.side = PassSide::Right;
+        }
+    }
+
+    /// t_R along the predicted path: a straight run from the base to the goal pose, then straight
+    /// on along the goal heading, at constant speed, with the target moving at its estimated
+    /// velocity. Returns the time and the base pose then.
+    fn time_to_range(
+        &self,
+        base: &BasePose,
+        goal: &BasePose,
+        target: &TargetEstimate,
+        speed: f64,
+    ) -> (f64, BasePose) {
+        let range = self.model.manipulation_range;
+        // A zero speed (from a degenerate configuration) would make the prediction NaN.
+        let speed = speed.max(1e-3);
+        let target_xy = xy(&target.position);
+        let target_velocity = xy(&target.velocity);
+        let arm_base_at =
+            |position: Vector2<f64>, yaw: f64| position + Rotation2::new(yaw) * self.model.arm_base;
+        let base_xy = Vector2::new(base.x, base.y);
+        if (arm_base_at(base_xy, base.yaw) - target_xy).norm() <= range {
+            return (0.0, *base);
+        }
+        let goal_xy = Vector2::new(goal.x, goal.y);
+        let first_length = (goal_xy - base_xy).norm();
+        let first_heading = if first_length > 1e-9 {
+            (goal_xy.y - base_xy.y).atan2(goal_xy.x - base_xy.x)
+        } else {
+            goal.yaw
+        };
+        // Segments: (start time, start position, direction of travel, heading that carries the
+        // arm base, duration). On the first segment the arm base keeps the current heading, so
+        // that τ = 0 agrees with the in-range check above.
+        let segments = [
+            (0.0, base_xy, first_heading, base.yaw, first_length / speed),
+            (
+                first_length / speed,
+                goal_xy,
+                goal.yaw,
+                goal.yaw,
+                f64::INFINITY,
+            ),
+        ];
+        let mut closest = (f64::INFINITY, 0.0, *base);
+        for (start_time, start, yaw, arm_yaw, duration) in segments {
+            let direction = Vector2::new(yaw.cos(), yaw.sin());
+            // Arm base relative to the target: r(τ) = r0 + w·τ for τ in [0, duration].
+            let r0 = arm_base_at(start, arm_yaw) - (target_xy + target_velocity * start_time);
+            let w = direction * speed - target_velocity;
+            let pose_at = |tau: f64| {
+                let p = start + direction * speed * tau;
+                BasePose::new(p.x, p.y, yaw)
+            };
+            if let Some(tau) = first_entry(&r0, &w, range).filter(|t| *t <= duration) {
+                return (start_time + tau, pose_at(tau));
+            }
+            let w2 = w.norm_squared();
+            let tau_min = if w2 > 0.0 {
+                (-r0.dot(&w) / w2).clamp(0.0, duration.min(1e6))
+            } else {
+                0.0
+            };
+            let distance = (r0 + w * tau_min).norm();
+            if distance < closest.0 {
+                closest = (distance, start_time + tau_min, pose_at(tau_min));
+            }
+        }
+        (closest.1, closest.2)
+    }
+}
+
+/// Smallest τ ≥ 0 with |r0 + w·τ| ≤ range, if any.
+fn first_entry(r0: &Vector2<f64>, w: &Vector2<f64>, range: f64) -> Option<f64> {
+    let c = r0.norm_squared() - range * range;
+    if c <= 0.0 {
+        return Some(0.0);
+    }
+    let a = w.norm_squared();
+    let b = 2.0 * r0.dot(w);
+    let discriminant = b * b - 4.0 * a * c;
+    if a <= 0.0 || discriminant < 0.0 || b >= 0.0 {
+        return None;
+    }
+    Some((-b - discriminant.sqrt()) / (2.0 * a))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    const DT: f64 = 0.02;
+
+    fn frankie_like() -> BaseModel {
+        BaseModel {
+            manipulation_range: 0.75,
+            arm_base: Vector2::new(0.15, 0.0),
+            max_speed: 1.2,
+            max_yaw_rate: 1.5,
+        }
+    }
+
+    /// Integrates a unicycle as ALGORITHMS.md §1 says: rotate by ω·dt, then move v·dt along the
+    /// new heading.
+    fn integrate(base: &mut BasePose, command: BaseVelocity, dt: f64) {
+        base.yaw = wrap_angle(base.yaw + command.omega * dt);
+        base.x += command.v * dt * base.yaw.cos();
+        base.y += command.v * dt * base.yaw.sin();
+    }
+
+    struct Pass {
+        /// Smallest base–target distance over the run, m.
+        min_distance: f64,
+        /// Cross product heading × (target − base) at the closest approach: < 0 means the target
+        /// was on the right.
+        target_side: f64,
+        /// Side reported by the controller at the closest approach.
+        side: PassSide,
+        /// Every commanded forward speed.
+        speeds: Vec<f64>,
+        /// Time of the first step reporting "passed", s.
+        passed_at: Option<f64>,
+        /// Distance from the base to the next target at the end, m.
+        final_distance_to_next: f64,
+    }
+
+    fn drive_past(
+        config: BaseControllerConfig,
+        start: BasePose,
+        target: Vector3<f64>,
+        target_velocity: Vector3<f64>,
+        next: Vector3<f64>,
+        duration: f64,
+    ) -> Pass {
+        let mut controller = BaseController::new(config, frankie_like());
+        let mut base = start;
+        let mut pass = Pass {
+            min_distance: f64::INFINITY,
+            target_side: 0.0,
+            side: PassSide::Left,
+            speeds: Vec::new(),
+            passed_at: None,
+            final_distance_to_next: 0.0,
+        };
+        let steps = (duration / DT) as usize;
+        for k in 0..steps {
+            let t = k as f64 * DT;
+            let position = target + target_velocity * t;
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target: TargetEstimate {
+                        position,
+                        velocity: target_velocity,
+                    },
+                    next_target: next,
+                })
+                .unwrap();
+            let to_target = Vector2::new(position.x - base.x, position.y - base.y);
+            let distance = to_target.norm();
+            if distance < pass.min_distance {
+                pass.min_distance = distance;
+                pass.target_side = Vector2::new(base.yaw.cos(), base.yaw.sin()).perp(&to_target);
+                pass.side = out.side;
+            }
+            if out.passed && pass.passed_at.is_none() {
+                pass.passed_at = Some(t);
+            }
+            assert!(out.command.omega.is_finite() && out.command.omega.abs() <= 1.5);
+            pass.speeds.push(out.command.v);
+            integrate(&mut base, out.command, DT);
+        }
+        pass.final_distance_to_next = Vector2::new(next.x - base.x, next.y - base.y).norm();
+        pass
+    }
+
+    fn assert_passes(pass: &Pass, side: PassSide) {
+        eprintln!("closest approach {:.4} m", pass.min_distance);
+        assert!(
+            (pass.min_distance - 0.6).abs() < 0.05,
+            "closest approach {:.3} m, expected 0.6 ± 0.05",
+            pass.min_distance
+        );
+        assert_eq!(pass.side, side);
+        match side {
+            PassSide::Left => assert!(pass.target_side < 0.0, "target should be on the right"),
+            PassSide::Right => assert!(pass.target_side > 0.0, "target should be on the left"),
+        }
+        assert!(pass.passed_at.is_some(), "the passed latch never set");
+        assert!(pass.speeds.iter().all(|v| (v - 0.3).abs() < 1e-12));
+    }
+
+    /// Both closest-approach headings.
+    fn configs() -> [BaseControllerConfig; 2] {
+        [ApproachHeading::TowardNext, ApproachHeading::Tangent].map(|approach_heading| {
+            BaseControllerConfig {
+                approach_heading,
+                ..BaseControllerConfig::default()
+            }
+        })
+    }
+
+    #[test]
+    fn passes_a_static_target_at_r_c_on_the_side_of_a_left_next_target() {
+        for config in configs() {
+            let pass = drive_past(
+                config,
+                BasePose::new(0.0, 0.0, 0.0),
+                Vector3::new(3.0, 0.0, 0.45),
+                Vector3::zeros(),
+                Vector3::new(5.0, 2.0, 0.35),
+                20.0,
+            );
+            assert_passes(&pass, PassSide::Left);
+            assert!(
+                pass.final_distance_to_next < 0.5,
+                "did not go on to the next target"
+            );
+        }
+    }
+
+    #[test]
+    fn passes_a_static_target_at_r_c_on_the_side_of_a_right_next_target() {
+        for config in configs() {
+            let pass = drive_past(
+                config,
+                BasePose::new(0.0, 0.0, 0.3),
+                Vector3::new(3.0, 0.5, 0.45),
+                Vector3::zeros(),
+                Vector3::new(5.0, -2.0, 0.35),
+                20.0,
+            );
+            assert_passes(&pass, PassSide::Right);
+            assert!(
+                pass.final_distance_to_next < 0.5,
+                "did not go on to the next target"
+            );
+        }
+    }
+
+    #[test]
+    fn passes_a_slowly_moving_target_at_r_c() {
+        for (velocity, next, side) in [
+            (
+                Vector3::new(0.0, 0.03, 0.0),
+                Vector3::new(5.0, 1.0, 0.35),
+                PassSide::Left,
+            ),
+            (
+                Vector3::new(-0.03, 0.0, 0.0),
+                Vector3::new(5.0, -1.0, 0.35),
+                PassSide::Right,
+            ),
+            (
+                Vector3::new(0.02, -0.02, 0.0),
+                Vector3::new(5.0, -1.0, 0.35),
+                PassSide::Right,
+            ),
+            (
+                Vector3::new(0.03, 0.0, 0.0),
+                Vector3::new(3.5, 3.0, 0.35),
+                PassSide::Left,
+            ),
+        ] {
+            for config in configs() {
+                let pass = drive_past(
+                    config,
+                    BasePose::new(0.0, 0.0, 0.0),
+                    Vector3::new(3.0, 0.0, 0.45),
+                    velocity,
+                    next,
+                    15.0,
+                );
+                assert_passes(&pass, side);
+            }
+        }
+    }
+
+    #[test]
+    fn starting_inside_r_c_counts_as_passed_and_heads_for_the_next_target() {
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let out = controller
+            .step(&BaseControllerInput {
+                task_index: 0,
+                base: BasePose::new(0.0, 0.0, 0.0),
+                target: TargetEstimate::fixed(Vector3::new(0.3, 0.2, 0.45)),
+                next_target: Vector3::new(0.0, 3.0, 0.35),
+            })
+            .unwrap();
+        assert!(out.passed);
+        assert_eq!(out.time_to_range, 0.0);
+        assert_eq!(out.closest_approach, BasePose::new(0.0, 0.0, 0.0));
+        // The next target is 3 m away, 90° to the left, and the goal heading points at it
+        // (β = 0): ω = k_α·α·v_F/ρ = 4·(π/2)·0.3/3.
+        let expected = 4.0 * std::f64::consts::FRAC_PI_2 * 0.3 / 3.0;
+        assert!(
+            (out.command.omega - expected).abs() < 1e-12,
+            "{}",
+            out.command.omega
+        );
+    }
+
+    #[test]
+    fn frankie_model_comes_from_its_config_and_urdf() {
+        let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let robot = Robot::load(&config_dir, "frankie").unwrap();
+        let model = BaseModel::from_robot(&robot);
+        assert_eq!(model.manipulation_range, 0.75);
+        assert!((model.arm_base - Vector2::new(0.15, 0.0)).norm() < 1e-12);
+        assert_eq!((model.max_speed, model.max_yaw_rate), (1.2, 1.5));
+    }
+
+    #[test]
+    fn the_side_holds_inside_the_hysteresis_band() {
+        // The next target is almost straight ahead, slightly to the right: within the band the
+        // initial choice (right, from the sign of the bend) must be kept while driving.
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let mut input = BaseControllerInput {
+            task_index: 0,
+            base: BasePose::new(0.0, 0.0, 0.0),
+            target: TargetEstimate::fixed(Vector3::new(3.0, 0.0, 0.45)),
+            next_target: Vector3::new(6.0, -0.1, 0.35),
+        };
+        assert_eq!(controller.step(&input).unwrap().side, PassSide::Right);
+        // Noise moves the next target slightly to the left: still inside the band, keep right.
+        input.next_target.y = 0.1;
+        assert_eq!(controller.step(&input).unwrap().side, PassSide::Right);
+        // A clear bend to the left switches.
+        input.next_target.y = 1.5;
+        assert_eq!(controller.step(&input).unwrap().side, PassSide::Left);
+        // A new task starts from the raw sign again.
+        input.task_index = 1;
+        input.next_target.y = -0.1;
+        assert_eq!(controller.step(&input).unwrap().side, PassSide::Right);
+    }
+
+    #[test]
+    fn time_to_range_counts_down_and_matches_the_actual_entry() {
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let target = Vector3::new(4.0, 0.0, 0.45);
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        let mut predictions = Vec::new();
+        let mut entered_at = None;
+        for k in 0..1000 {
+            let t = k as f64 * DT;
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target: TargetEstimate::fixed(target),
+                    next_target: Vector3::new(7.0, 1.0, 0.35),
+                })
+                .unwrap();
+            let arm_base =
+                Vector2::new(base.x, base.y) + Rotation2::new(base.yaw) * Vector2::new(0.15, 0.0);
+            if entered_at.is_none() && (arm_base - Vector2::new(target.x, target.y)).norm() <= 0.75
+            {
+                entered_at = Some(t);
+                assert_eq!(out.time_to_range, 0.0);
+            }
+            if entered_at.is_none() {
+                assert!(out.time_to_range > 0.0);
+            }
+            predictions.push((t, out.time_to_range));
+            integrate(&mut base, out.command, DT);
+        }
+        let entered_at = entered_at.expect("never entered manipulation range");
+        // Once the base is on its tangent line (after the first 2 s) the prediction is exact to
+        // within a few steps.
+        for &(t, t_r) in predictions
+            .iter()
+            .filter(|(t, _)| (2.0..entered_at).contains(t))
+        {
+            assert!(
+                (t + t_r - entered_at).abs() < 0.1,
+                "at t = {t:.2} s predicted entry at {:.2} s, actual {entered_at:.2} s",
+                t + t_r
+            );
+        }
+    }
+
+    #[test]
+    fn speed_and_yaw_rate_respect_the_base_limits() {
+        let model = BaseModel {
+            max_speed: 0.25,
+            max_yaw_rate: 0.4,
+            ..frankie_like()
+        };
+        let mut controller = BaseController::new(BaseControllerConfig::default(), model);
+        // Target behind the base: the controller wants to turn hard.
+        let out = controller
+            .step(&BaseControllerInput {
+                task_index: 0,
+                base: BasePose::new(0.0, 0.0, 0.0),
+                target: TargetEstimate::fixed(Vector3::new(-3.0, 0.5, 0.45)),
+                next_target: Vector3::new(-6.0, 0.0, 0.35),
+            })
+            .unwrap();
+        assert_eq!(out.command.v, 0.25);
+        assert_eq!(out.command.omega.abs(), 0.4);
+    }
+
+    #[test]
+    fn non_finite_input_is_an_error_naming_the_field() {
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let err = controller
+            .step(&BaseControllerInput {
+                task_index: 0,
+                base: BasePose::new(0.0, 0.0, 0.0),
+                target: TargetEstimate::fixed(Vector3::new(f64::NAN, 0.0, 0.45)),
+                next_target: Vector3::new(6.0, 0.0, 0.35),
+            })
+            .unwrap_err();
+        assert_eq!(err.field, "target.position");
+    }
+
+    #[test]
+    fn a_degenerate_configuration_still_gives_finite_outputs() {
+        let config = BaseControllerConfig {
+            forward_speed: 0.0,
+            min_goal_distance: 0.0,
+            ..BaseControllerConfig::default()
+        };
+        let mut controller = BaseController::new(config, frankie_like());
+        for target in [Vector3::new(3.0, 0.0, 0.45), Vector3::new(0.0, 0.0, 0.45)] {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base: BasePose::new(0.0, 0.0, 0.0),
+                    target: TargetEstimate::fixed(target),
+                    next_target: target,
+                })
+                .unwrap();
+            let values = [
+                out.command.v,
+                out.command.omega,
+                out.time_to_range,
+                out.range_entry_pose.x,
+                out.range_entry_pose.yaw,
+                out.closest_approach.x,
+            ];
+            assert!(values.iter().all(|v| v.is_finite()), "{out:?}");
+        }
+    }
+
+    #[test]
+    fn config_rejects_unknown_keys_and_bad_values() {
+        let file = Path::new("controllers.toml");
+        let err = ModelError::parse_toml_str::<BaseControllerConfig>(file, "k_gamma = 1.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("controllers.toml") && err.contains("k_gamma"),
+            "{err}"
+        );
+        let config: BaseControllerConfig =
+            ModelError::parse_toml_str(file, "k_beta = 1.5\napproach_heading = \"toward_next\"\n")
+                .unwrap();
+        assert_eq!(config.approach_heading, ApproachHeading::TowardNext);
+        let err = config.validate(file).unwrap_err().to_string();
+        assert!(err.contains("base_controller.k_beta"), "{err}");
+        BaseControllerConfig::default().validate(file).unwrap();
+    }
+}

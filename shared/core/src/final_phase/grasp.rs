@@ -1,0 +1,425 @@
+//! Grasp: position-based servoing onto the object, close, lift (ALGORITHMS.md §2).
+//!
+//! Stages:
+//! 1. [`Approach`](FinalPhaseStage::Approach): servo the tool top-down onto the grasp point
+//!    (target + `grasp_offset`) with k_P and the object's velocity as feed-forward. The goal is
+//!    raised by `descent_slope` × horizontal error so the fingers come down onto the object. When
+//!    the tool is within ε_g (`close_distance`) of the grasp point and within `close_max_tilt`
+//!    of top-down, close.
+//! 2. [`Closing`](FinalPhaseStage::Closing): keep servoing onto the grasp point while the
+//!    fingers close, until the opening falls to `closed_opening` or `closing_timeout` passes.
+//! 3. [`Lifting`](FinalPhaseStage::Lifting): rise by `lift_height` above the grasp point.
+//!    Horizontally the goal keeps moving with the object's velocity latched at the end of
+//!    closure: once the object is in the hand its estimate moves with the tool, and feeding that
+//!    back would keep whatever velocity the tool happens to have.
+//! 4. [`Done`](FinalPhaseStage::Done): at the lift height; the lift goal is still tracked (it
+//!    keeps moving with the latched velocity) until the sequencer hands the arm on.
+//!
+//! Grasp success is decided by the world (the simulator's grasp model), never here.
+
+use nalgebra::Vector3;
+
+use super::{
+    FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseOutput, FinalPhaseStage,
+    GraspConfig, ServoConfig, StageClock, top_down_angle,
+};
+use crate::types::GripperCommand;
+
+/// The grasp controller (`"grasp"`).
+#[derive(Debug, Clone)]
+pub struct GraspController {
+    servo: ServoConfig,
+    config: GraspConfig,
+    stage: FinalPhaseStage,
+    clock: StageClock,
+    /// Grasp point and time at the end of closure, and the object's horizontal velocity then.
+    lift_from: Option<LiftOrigin>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct LiftOrigin {
+    point: Vector3<f64>,
+    t: f64,
+    velocity: Vector3<f64>,
+}
+
+impl LiftOrigin {
+    /// The lift goal and its velocity at time `t`.
+    fn goal(&self, t: f64, lift_height: f64) -> (Vector3<f64>, Vector3<f64>) {
+        let elapsed = (t - self.t).max(0.0);
+        let goal = self.point + self.velocity * elapsed + Vector3::z() * lift_height;
+        (goal, self.velocity)
+    }
+}
+
+impl GraspController {
+    /// A controller at the start of its approach.
+    pub fn new(servo: ServoConfig, config: GraspConfig) -> Self {
+        Self {
+            servo,
+            config,
+            stage: FinalPhaseStage::Approach,
+            clock: StageClock::default(),
+            lift_from: None,
+        }
+    }
+
+    /// The current stage.
+    pub fn stage(&self) -> FinalPhaseStage {
+        self.stage
+    }
+
+    fn grasp_point(&self, input: &FinalPhaseInput) -> Vector3<f64> {
+        input.target.position + Vector3::from(self.config.grasp_offset)
+    }
+
+    fn gripper(&self) -> GripperCommand {
+        match self.stage {
+            FinalPhaseStage::Approach => GripperCommand::Open,
+            _ => GripperCommand::Close,
+        }
+    }
+
+    fn enter(&mut self, stage: FinalPhaseStage, t: f64) {
+        self.stage = stage;
+        self.clock.restart(t);
+    }
+
+    /// Moves through the stages this cycle's input allows.
+    fn advance(&mut self, input: &FinalPhaseInput) {
+        let tool = input.tool_pose.translation.vector;
+        let grasp_point = self.grasp_point(input);
+        if self.stage == FinalPhaseStage::Approach
+            && (grasp_point - tool).norm() < self.config.close_distance
+            && top_down_angle(&input.tool_pose.rotation) < self.config.close_max_tilt
+        {
+            self.enter(FinalPhaseStage::Closing, input.t);
+        }
+        if self.stage == FinalPhaseStage::Closing {
+            let closed = input.gripper_opening <= self.config.closed_opening;
+            let timed_out = self.clock.elapsed(input.t) >= self.config.closing_timeout;
+            if closed || timed_out {
+                let mut velocity = input.target.velocity;
+                velocity.z = 0.0;
+                self.lift_from = Some(LiftOrigin {
+                    point: grasp_point,
+                    t: input.t,
+                    velocity,
+                });
+                self.enter(FinalPhaseStage::Lifting, input.t);
+            }
+        }
+        if self.stage == FinalPhaseStage::Lifting
+            && let Some(origin) = self.lift_from
+        {
+            let lifted = origin.point.z + self.config.lift_height - self.config.lift_tolerance;
+            if tool.z >= lifted {
+                self.enter(FinalPhaseStage::Done, input.t);
+            }
+        }
+    }
+
+    /// The servo goal and its feed-forward velocity for the current stage.
+    fn goal(&self, input: &FinalPhaseInput) -> (Vector3<f64>, Vector3<f64>) {
+        match (self.stage, self.lift_from) {
+            (FinalPhaseStage::Lifting | FinalPhaseStage::Done, Some(origin)) => {
+                origin.goal(input.t, self.config.lift_height)
+            }
+            (FinalPhaseStage::Approach, _) => {
+                let grasp_point = self.grasp_point(input);
+                let horizontal = (grasp_point - input.tool_pose.translation.vector)
+                    .xy()
+                    .norm();
+                let raised = grasp_point + Vector3::z() * (self.config.descent_slope * horizontal);
+                (raised, input.target.velocity)
+            }
+            _ => (self.grasp_point(input), input.target.velocity),
+        }
+    }
+}
+
+impl FinalPhaseController for GraspController {
+    fn step(&mut self, input: &FinalPhaseInput) -> FinalPhaseOutput {
+        if !input.is_finite() {
+            return FinalPhaseOutput::hold(self.gripper(), self.stage);
+        }
+        self.advance(input);
+        let (goal, feed_forward) = self.goal(input);
+        let limit = self.servo.correction_speed_limit(&input.base_velocity);
+        let twist = self
+            .servo
+            .twist(&input.tool_pose, &goal, &feed_forward, limit);
+        FinalPhaseOutput::new(twist, self.gripper(), self.stage)
+    }
+
+    fn kind(&self) -> FinalPhaseKind {
+        FinalPhaseKind::Grasp
+    }
+
+    fn reset(&mut self) {
+        *self = Self::new(self.servo, self.config);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::sim::{CUBE_WIDTH, KinematicWorld, TargetPath};
+    use super::*;
+    use crate::types::{TaskProgress, Twist};
+    use nalgebra::{Isometry3, Vector3};
+    use std::f64::consts::PI;
+
+    const DT: f64 = 0.025;
+    const CUBE: Vector3<f64> = Vector3::new(2.0, 0.5, 0.45);
+
+    /// What happened during a closed-loop grasp.
+    struct GraspRun {
+        /// Tool-to-cube distance on the first cycle the gripper was told to close.
+        close_distance: Option<f64>,
+        /// Tool tilt from top-down then, rad.
+        close_tilt: f64,
+        /// Largest lateral tool-to-cube offset while the fingers were closing.
+        max_lateral_while_closing: f64,
+        /// Lowest tool height relative to the cube while more than 2 cm off horizontally.
+        min_height_while_off_axis: f64,
+        /// Largest commanded linear and angular speed.
+        max_linear: f64,
+        max_angular: f64,
+        /// Cycle at which the controller reported done, and the world then.
+        done_at: Option<usize>,
+        world: KinematicWorld,
+    }
+
+    fn run_grasp(path: TargetPath, base_speed: f64, start_offset: Vector3<f64>) -> GraspRun {
+        let cube0 = path.at(0.0).position;
+        // 20° off top-down about a skew axis.
+        let rotation = nalgebra::UnitQuaternion::from_scaled_axis(Vector3::x() * PI)
+            * nalgebra::UnitQuaternion::from_scaled_axis(
+                Vector3::new(0.2, 0.3, 0.0).normalize() * 0.35,
+            );
+        let tool = Isometry3::from_parts((cube0 + start_offset).into(), rotation);
+        let mut world = KinematicWorld::new(tool, base_speed, path, DT);
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let mut run = GraspRun {
+            close_distance: None,
+            close_tilt: 0.0,
+            max_lateral_while_closing: 0.0,
+            min_height_while_off_axis: f64::INFINITY,
+            max_linear: 0.0,
+            max_angular: 0.0,
+            done_at: None,
+            world: world.clone(),
+        };
+        for cycle in 0..400 {
+            let out = controller.step(&world.input());
+            let twist: Twist = out.twist;
+            assert!(twist.iter().all(|x| x.is_finite()));
+            run.max_linear = run.max_linear.max(twist.fixed_rows::<3>(0).norm());
+            run.max_angular = run.max_angular.max(twist.fixed_rows::<3>(3).norm());
+            let offset = world.tool_from_target();
+            if out.gripper == GripperCommand::Close && run.close_distance.is_none() {
+                run.close_distance = Some(offset.norm());
+                run.close_tilt = top_down_angle(&world.tool.rotation);
+            }
+            if out.stage == FinalPhaseStage::Closing {
+                run.max_lateral_while_closing =
+                    run.max_lateral_while_closing.max(offset.xy().norm());
+            }
+            if out.stage == FinalPhaseStage::Approach && offset.xy().norm() > 0.02 {
+                run.min_height_while_off_axis = run.min_height_while_off_axis.min(offset.z);
+            }
+            if out.progress == TaskProgress::Done {
+                run.done_at = Some(cycle);
+                break;
+            }
+            world.advance(&out);
+        }
+        run.world = world;
+        run
+    }
+
+    fn assert_grasped_and_lifted(run: &GraspRun, cube_at_close_z: f64) {
+        let config = GraspConfig::default();
+        let servo = ServoConfig::default();
+        let close = run.close_distance.expect("the gripper never closed");
+        assert!(
+            close < config.close_distance,
+            "closed {close} m from the cube"
+        );
+        assert!(
+            run.close_tilt < config.close_max_tilt,
+            "tilt {} rad at closing",
+            run.close_tilt
+        );
+        // The fingers close from 80 mm to 30 mm: each side clears the cube by up to 25 mm, and
+        // less as they close. The cube must stay well inside.
+        assert!(
+            run.max_lateral_while_closing < 0.005,
+            "cube {} m off-centre while closing",
+            run.max_lateral_while_closing
+        );
+        assert!(
+            run.min_height_while_off_axis > -0.005,
+            "tool {} m below the cube centre while off to the side",
+            run.min_height_while_off_axis
+        );
+        assert!(run.done_at.is_some(), "never lifted");
+        assert!(run.world.holding, "the cube is not in the hand");
+        assert!((run.world.gripper_opening - CUBE_WIDTH).abs() < 1e-9);
+        let lifted = run.world.tool.translation.vector.z - cube_at_close_z;
+        assert!(
+            lifted >= config.lift_height - config.lift_tolerance
+                && lifted < config.lift_height + 0.01,
+            "lifted {lifted} m"
+        );
+        assert!(run.max_linear <= servo.max_linear_speed + 1e-9);
+        assert!(run.max_angular <= servo.max_angular_speed + 1e-9);
+    }
+
+    #[test]
+    fn grasps_and_lifts_a_static_cube_while_the_base_drives() {
+        let run = run_grasp(
+            TargetPath::Static(CUBE),
+            0.3,
+            Vector3::new(-0.06, 0.04, 0.07),
+        );
+        assert_grasped_and_lifted(&run, CUBE.z);
+    }
+
+    #[test]
+    fn converges_on_a_cube_moving_at_3_cm_per_s() {
+        let path = TargetPath::Circle {
+            centre: CUBE - Vector3::new(0.3, 0.0, 0.0),
+            radius: 0.3,
+            speed: 0.03,
+        };
+        let run = run_grasp(path, 0.3, Vector3::new(0.05, -0.06, 0.06));
+        assert_grasped_and_lifted(&run, CUBE.z);
+        // While lifting, the tool kept moving with the cube's latched velocity, not stopping.
+        let final_velocity = run.world.target.velocity.xy().norm();
+        assert!(
+            (final_velocity - 0.03).abs() < 0.01,
+            "held cube moves at {final_velocity} m/s at the end of the lift"
+        );
+    }
+
+    #[test]
+    fn feed_forward_removes_the_tracking_lag() {
+        // With k_P = 5 alone a 3 cm/s target would trail by 6 mm; with feed-forward the tool
+        // sits on it. Hold the controller in its closing stage (fingers stalled, a long closing
+        // time-out), then measure the steady error.
+        let path = TargetPath::Circle {
+            centre: CUBE - Vector3::new(0.3, 0.0, 0.0),
+            radius: 0.3,
+            speed: 0.03,
+        };
+        let config = super::super::FinalPhaseConfig::default();
+        let grasp = GraspConfig {
+            closing_timeout: 100.0,
+            ..config.grasp
+        };
+        let mut controller = GraspController::new(config.servo, grasp);
+        let tool = Isometry3::new(path.at(0.0).position, Vector3::x() * PI);
+        let mut world = KinematicWorld::new(tool, 0.3, path, DT);
+        world.graspable = false;
+        world.leak = 0.0;
+        for _ in 0..200 {
+            let out = controller.step(&world.input());
+            world.advance(&out);
+            world.gripper_opening = 0.05; // the fingers never get there
+        }
+        assert_eq!(controller.stage(), FinalPhaseStage::Closing);
+        // One cycle of command latency costs v·dt = 0.75 mm; the P lag would be 6 mm.
+        let error = world.tool_from_target().norm();
+        assert!(error < 0.002, "steady tracking error {error} m");
+    }
+
+    #[test]
+    fn comes_down_onto_a_cube_approached_from_the_side() {
+        // The tool starts level with the cube, 9 cm to the side. Going straight there would
+        // sweep the fingers into the cube; the descent cone must bring it over the top first.
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE - Vector3::new(0.09, 0.0, 0.0), Vector3::x() * PI);
+        let mut world = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT);
+        let cube_top = CUBE_WIDTH / 2.0;
+        for _ in 0..200 {
+            let out = controller.step(&world.input());
+            let offset = world.tool_from_target();
+            let horizontal = offset.xy().norm();
+            if out.stage == FinalPhaseStage::Approach && horizontal > 0.01 && horizontal < 0.04 {
+                assert!(
+                    offset.z > cube_top,
+                    "tool {} m above the cube centre at {horizontal} m to the side",
+                    offset.z
+                );
+            }
+            if out.gripper == GripperCommand::Close {
+                assert!(offset.norm() < config.grasp.close_distance);
+                return;
+            }
+            world.advance(&out);
+        }
+        panic!("never closed");
+    }
+
+    #[test]
+    fn lifts_after_the_timeout_if_the_fingers_stall() {
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE, Vector3::x() * PI);
+        let mut input = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT).input();
+        input.gripper_opening = 0.05; // stalled
+        assert_eq!(controller.step(&input).stage, FinalPhaseStage::Closing);
+        input.t += config.grasp.closing_timeout * 0.5;
+        assert_eq!(controller.step(&input).stage, FinalPhaseStage::Closing);
+        input.t += config.grasp.closing_timeout * 0.6;
+        let out = controller.step(&input);
+        assert_eq!(out.stage, FinalPhaseStage::Lifting);
+        assert!(out.twist[2] > 0.0, "lifting moves up: {}", out.twist);
+        assert_eq!(out.gripper, GripperCommand::Close);
+    }
+
+    #[test]
+    fn non_finite_input_gives_zero_twist_and_holds_the_stage() {
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE, Vector3::x() * PI);
+        let good = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT).input();
+        assert_eq!(controller.step(&good).stage, FinalPhaseStage::Closing);
+
+        let mut corrupt = [good; 4];
+        corrupt[0].target.position.x = f64::NAN;
+        corrupt[1].tool_pose.translation.vector.z = f64::INFINITY;
+        corrupt[2].base_velocity.v = f64::NAN;
+        corrupt[3].gripper_opening = f64::NEG_INFINITY;
+        for bad in corrupt {
+            let out = controller.step(&bad);
+            assert_eq!(out.twist, Twist::zeros());
+            assert!(out.input_rejected);
+            assert_eq!(out.stage, FinalPhaseStage::Closing);
+            assert_eq!(
+                out.gripper,
+                GripperCommand::Close,
+                "a held cube is not dropped"
+            );
+            assert_eq!(out.progress, TaskProgress::Active);
+        }
+        assert!(!controller.step(&good).input_rejected);
+    }
+
+    #[test]
+    fn reset_returns_to_the_approach() {
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE, Vector3::x() * PI);
+        let input = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT).input();
+        assert_eq!(controller.step(&input).gripper, GripperCommand::Close);
+        controller.reset();
+        assert_eq!(controller.stage(), FinalPhaseStage::Approach);
+        let mut far = input;
+        far.tool_pose.translation.vector.x -= 0.08;
+        assert_eq!(controller.step(&far).gripper, GripperCommand::Open);
+    }
+}

@@ -1,0 +1,756 @@
+//! The MotM reacher (paper section III-B.2; ALGORITHMS.md §2 "Reacher").
+//!
+//! Until the arm has to start, the tool holds its ready pose relative to the base. The arm starts
+//! when the time until the base is in manipulation range, t_R (from the base controller), is no
+//! longer than the arm's transit time t_A = (distance to go, in the base frame) / (k_A·v_B). From
+//! then on, every step, a quintic is planned from the tool's current state to the predicted
+//! pre-grasp point, arriving at T = max(t_R, t_A) with the object's velocity, and the command is
+//! the trajectory's velocity one control step ahead.
+//!
+//! Choices (each a [`ReacherConfig`] value where it is a number):
+//! - **Transit distance.** t_A uses the distance from the tool's position in the current base
+//!   frame to the pre-grasp point predicted at t_R, expressed in the base frame predicted at t_R
+//!   (the base controller's `range_entry_pose`). The plain world distance would include the
+//!   base's own drive and start the arm as soon as the mission begins.
+//! - **v_B** is the base controller's commanded forward speed, so the trigger does not fire at
+//!   start-up while the base is still at rest.
+//! - **Trigger latch.** Once started, the reacher keeps reaching until the task changes, even if
+//!   t_R > t_A again (t_A shrinks as the arm moves; flipping back would make the arm oscillate).
+//! - **Pre-grasp point.** The goal is `pregrasp_height` above the object; the final-phase
+//!   controller descends the rest.
+//! - **Arrival velocity.** The trajectory ends with the object's estimated velocity and zero
+//!   acceleration, so the tool matches a moving object; the end point is the object's position
+//!   extrapolated over the trajectory duration.
+//! - **Start state.** The quintic starts from the measured tool pose with the twist and
+//!   acceleration of [`ToolState`] (normally the previous command), so replanning is smooth.
+//! - **Orientation.** The gripper goes to a top-down pose (tool z axis straight down). Its yaw is
+//!   the object's yaw modulo its symmetry when known, else the ready pose's yaw relative to the
+//!   base, at the base heading predicted at t_R. The rotation follows the same quintic time
+//!   scaling on the remaining rotation vector (world frame), ending at rest. The palm camera is
+//!   not pointed at the object during the approach: the palm fisheye (about 180° field of view)
+//!   keeps the object in view from a top-down pose.
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Rotation3, UnitQuaternion, Vector3, Vector6};
+use serde::Deserialize;
+
+use crate::error::ModelError;
+use crate::input_check::{NonFiniteInput, ensure_finite};
+use crate::kinematics::BasePose;
+use crate::quintic::{PointState, Quintic3};
+use crate::robot::Robot;
+use crate::types::{BaseVelocity, TargetEstimate, Twist, wrap_angle};
+
+/// Floor on k_A·v_B in t_A, m/s, guarding against a zero or negative configured k_A.
+const MIN_ARM_SPEED: f64 = 1e-6;
+
+/// Cap on the trajectory duration T, s.
+const MAX_DURATION: f64 = 1e6;
+
+/// Tunables of the reacher (the `[reacher]` table of a controller config).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReacherConfig {
+    /// k_A: the arm's average transit speed in the base frame is k_A·v_B.
+    pub arm_speed_ratio: f64,
+    /// The reacher aims this far straight above the object (the pre-grasp point), m. The
+    /// final-phase controller descends the rest, so the approach ends from above and the fingers
+    /// do not sweep into the cube. It must be smaller than the final-phase hand-over distance
+    /// d_T (0.1 m), or the hand-over would never happen.
+    pub pregrasp_height: f64,
+    /// Shortest trajectory duration T, s, so that a trajectory that is almost done does not
+    /// demand a huge velocity.
+    pub min_duration: f64,
+    /// Lower clamp on the base speed v_B in t_A, m/s, so a stopped base does not divide by zero.
+    pub min_base_speed: f64,
+    /// Gain of the proportional correction toward the ready pose while holding, 1/s.
+    pub hold_gain: f64,
+    /// Symmetry of the object about the vertical, rad (π/2 for a cube). When the object's yaw is
+    /// known, the gripper yaw is the object's yaw plus the multiple of this closest to the
+    /// gripper's current yaw.
+    pub yaw_symmetry: f64,
+}
+
+impl Default for ReacherConfig {
+    fn default() -> Self {
+        Self {
+            arm_speed_ratio: 0.5,
+            pregrasp_height: 0.05,
+            min_duration: 0.2,
+            min_base_speed: 0.05,
+            hold_gain: 2.0,
+            yaw_symmetry: std::f64::consts::FRAC_PI_2,
+        }
+    }
+}
+
+impl ReacherConfig {
+    /// Checks the values; `file` is the configuration file they came from, named in the error.
+    pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
+        let checks = [
+            ("arm_speed_ratio", self.arm_speed_ratio > 0.0),
+            (
+                "pregrasp_height",
+                (0.0..0.1).contains(&self.pregrasp_height),
+            ),
+            ("min_duration", self.min_duration > 0.0),
+            ("min_base_speed", self.min_base_speed > 0.0),
+            ("hold_gain", self.hold_gain >= 0.0),
+            ("yaw_symmetry", self.yaw_symmetry > 0.0),
+        ];
+        for (key, ok) in checks {
+            if !ok {
+                return Err(ModelError::invalid(
+                    file,
+                    format!("reacher.{key}"),
+                    "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
+                     min_base_speed > 0, hold_gain ≥ 0, yaw_symmetry > 0)",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The tool's current motion state, world frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToolState {
+    /// Measured tool pose.
+    pub pose: Isometry3<f64>,
+    /// Tool twist `[v; ω]`. Passing the previous step's [`ReacherOutput::twist`] (the command)
+    /// gives the smoothest replanning; a measured twist also works.
+    pub twist: Twist,
+    /// Tool acceleration `[a; α]`, normally the previous step's [`ReacherOutput::acceleration`].
+    pub acceleration: Vector6<f64>,
+}
+
+/// What the reacher reads each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReacherInput {
+    /// Index of the current mission task; when it changes the reacher goes back to holding.
+    pub task_index: usize,
+    /// Current base pose.
+    pub base: BasePose,
+    /// The base velocity commanded this step by the base controller. Its forward speed is v_B
+    /// in t_A (the measured speed is zero at start-up and would start the arm at once), and
+    /// while holding, the tool is carried with this base motion so that the resolver can keep
+    /// the arm still.
+    pub base_velocity: BaseVelocity,
+    /// The tool's current state.
+    pub tool: ToolState,
+    /// Latest estimate of the object (the grasp point, e.g. the cube centre).
+    pub target: TargetEstimate,
+    /// The object's yaw about the vertical, if known, rad.
+    pub target_yaw: Option<f64>,
+    /// t_R from the base controller, s.
+    pub time_to_range: f64,
+    /// The base pose predicted at t_R, from the base controller.
+    pub range_entry_pose: BasePose,
+    /// Control period, s: the command is the trajectory velocity this far ahead.
+    pub dt: f64,
+}
+
+/// Whether the arm holds its ready pose or reaches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ReachMode {
+    /// The tool holds the ready pose relative to the base.
+    #[default]
+    Holding,
+    /// The tool follows the quintic toward the object (latched until the task changes).
+    Reaching,
+}
+
+/// What the reacher produces each step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReacherOutput {
+    /// World twist command for the tool `[v; ω]`.
+    pub twist: Twist,
+    /// The trajectory's acceleration at the same instant as `twist` (zero while holding); feed it
+    /// back as [`ToolState::acceleration`].
+    pub acceleration: Vector6<f64>,
+    /// Holding or reaching.
+    pub mode: ReachMode,
+    /// t_A, the arm transit time estimate, s.
+    pub transit_time: f64,
+    /// T, the duration of this step's trajectory, s (zero while holding).
+    pub duration: f64,
+    /// Goal pose of this step's trajectory: the pre-grasp pose at T (the ready pose while holding).
+    pub goal: Isometry3<f64>,
+}
+
+/// The reacher: a step function plus the latched mode.
+#[derive(Debug, Clone)]
+pub struct Reacher {
+    config: ReacherConfig,
+    ready_tool: Isometry3<f64>,
+    task_index: Option<usize>,
+    mode: ReachMode,
+}
+
+/// A top-down tool orientation with the given yaw: the tool z axis points down and the tool
+/// x axis points along `yaw` in the horizontal plane.
+pub fn top_down(yaw: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+}
+
+/// The yaw of a tool orientation: the heading of its x axis projected on the horizontal plane.
+pub fn tool_yaw(rotation: &UnitQuaternion<f64>) -> f64 {
+    let x = rotation * Vector3::x();
+    x.y.atan2(x.x)
+}
+
+impl Reacher {
+    /// A reacher whose ready pose is the tool pose, in the base frame, at the robot's
+    /// configured ready joint positions.
+    pub fn new(config: ReacherConfig, robot: &Robot) -> Self {
+        let ready_tool = robot.tool_pose(&BasePose::default(), &robot.config.ready_pose);
+        Self::with_ready_tool(config, ready_tool)
+    }
+
+    /// A reacher with an explicit ready tool pose in the base frame.
+    pub fn with_ready_tool(config: ReacherConfig, ready_tool: Isometry3<f64>) -> Self {
+        Self {
+            config,
+            ready_tool,
+            task_index: None,
+            mode: ReachMode::Holding,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ReacherConfig {
+        &self.config
+    }
+
+    /// The ready tool pose in the base frame.
+    pub fn ready_tool(&self) -> &Isometry3<f64> {
+        &self.ready_tool
+    }
+
+    /// One control step. Errors (and changes no state) if an input is not finite or `dt` is not
+    /// positive.
+    pub fn step(&mut self, input: &ReacherInput) -> Result<ReacherOutput, NonFiniteInput> {
+        check_input(input)?;
+        if self.task_index != Some(input.task_index) {
+            self.task_index = Some(input.task_index);
+            self.mode = ReachMode::Holding;
+        }
+        let config = &self.config;
+        let time_to_range = input.time_to_range.max(0.0);
+        let pregrasp = Vector3::z() * config.pregrasp_height;
+
+        // t_A: from the tool's position in the current base frame to the pre-grasp point predicted
+        // at t_R, in the base frame predicted at t_R. The distance is the arm's own travel
+        // relative to the base; the world distance would include the base's drive and trigger
+        // the arm far too early.
+        let goal_at_range = input.target.predict(time_to_range) + pregrasp;
+        let goal_in_entry_frame = input
+            .range_entry_pose
+            .isometry()
+            .inverse_transform_point(&goal_at_range.into());
+        let tool_in_base_frame = input
+            .base
+            .isometry()
+            .inverse_transform_point(&input.tool.pose.translation.vector.into());
+        let base_speed = input.base_velocity.v.abs().max(config.min_base_speed);
+        let arm_speed = (config.arm_speed_ratio * base_speed).max(MIN_ARM_SPEED);
+        let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm() / arm_speed;
+
+        if self.mode == ReachMode::Holding && time_to_range <= transit_time {
+            self.mode = ReachMode::Reaching;
+        }
+        if self.mode == ReachMode::Holding {
+            return Ok(self.hold(input, transit_time));
+        }
+
+        // At least one control period and the configured floor; capped so that a degenerate
+        // configuration cannot produce an infinite duration.
+        let duration = time_to_range
+            .max(transit_time)
+            .max(config.min_duration)
+            .max(input.dt)
+            .min(MAX_DURATION);
+        let goal_position = input.target.predict(duration) + pregrasp;
+        let current_yaw = tool_yaw(&input.tool.pose.rotation);
+        let goal_yaw = match input.target_yaw {
+            Some(yaw) if config.yaw_symmetry > 0.0 => {
+                let symmetry = config.yaw_symmetry;
+                yaw + (wrap_angle(current_yaw - yaw) / symmetry).round() * symmetry
+            }
+            Some(yaw) => yaw,
+            None => input.range_entry_pose.yaw + tool_yaw(&self.ready_tool.rotation),
+        };
+        let goal_rotation = top_down(goal_yaw);
+        let twist = &input.tool.twist;
+        let acceleration = &input.tool.acceleration;
+
+        let translation = Quintic3::new(
+            &PointState {
+                position: input.tool.pose.translation.vector,
+                velocity: twist.fixed_rows::<3>(0).into_owned(),
+                acceleration: acceleration.fixed_rows::<3>(0).into_owned(),
+            },
+            &PointState {
+                position: goal_position,
+                velocity: input.target.velocity,
+                acceleration: Vector3::zeros(),
+            },
+            duration,
+        )
+        .expect("finite inputs and a positive duration");
+        // Rotation: the remaining rotation vector r (world frame) goes from its current value to
+        // zero on the same time scaling; the tool's angular velocity is −ṙ.
+        let remaining = (goal_rotation * input.tool.pose.rotation.inverse()).scaled_axis();
+        let rotation = Quintic3::new(
+            &PointState {
+                position: remaining,
+                velocity: -twist.fixed_rows::<3>(3).into_owned(),
+                acceleration: -acceleration.fixed_rows::<3>(3).into_owned(),
+            },
+            &PointState::at_rest(Vector3::zeros()),
+            duration,
+        )
+        .expect("finite inputs and a positive duration");
+
+        let ahead = translation.evaluate(input.dt);
+        let turn = rotation.evaluate(input.dt);
+        Ok(ReacherOutput {
+            twist: stack(&ahead.velocity, &-turn.velocity),
+            acceleration: stack(&ahead.acceleration, &-turn.acceleration),
+            mode: self.mode,
+            transit_time,
+            duration,
+            goal: Isometry3::from_parts(goal_position.into(), goal_rotation),
+        })
+    }
+
+    /// Holding: the twist of the ready pose carried by the base, plus a proportional pull back to
+    /// it.
+    fn hold(&self, input: &ReacherInput, transit_time: f64) -> ReacherOutput {
+        let base = &input.base;
+        let ready = base.isometry() * self.ready_tool;
+        let lever = ready.translation.vector - Vector3::new(base.x, base.y, 0.0);
+        let yaw_rate = Vector3::z() * input.base_velocity.omega;
+        let carried = Vector3::new(base.yaw.cos(), base.yaw.sin(), 0.0) * input.base_velocity.v
+            + yaw_rate.cross(&lever);
+        let gain = self.config.hold_gain;
+        let position_error = ready.translation.vector - input.tool.pose.translation.vector;
+        let rotation_error = (ready.rotation * input.tool.pose.rotation.inverse()).scaled_axis();
+        ReacherOutput {
+            twist: stack(
+                &(carried + position_error * gain),
+                &(yaw_rate + rotation_error * gain),
+            ),
+            acceleration: Vector6::zeros(),
+            mode: ReachMode::Holding,
+            transit_time,
+            duration: 0.0,
+            goal: ready,
+        }
+    }
+}
+
+fn stack(linear: &Vector3<f64>, angular: &Vector3<f64>) -> Vector6<f64> {
+    Vector6::new(
+        linear.x, linear.y, linear.z, angular.x, angular.y, angular.z,
+    )
+}
+
+fn check_input(input: &ReacherInput) -> Result<(), NonFiniteInput> {
+    let b = &input.base;
+    ensure_finite("base", &[b.x, b.y, b.yaw])?;
+    let v = &input.base_velocity;
+    ensure_finite("base_velocity", &[v.v, v.omega])?;
+    ensure_finite("tool.pose", input.tool.pose.translation.vector.iter())?;
+    ensure_finite("tool.pose", input.tool.pose.rotation.coords.iter())?;
+    ensure_finite("tool.twist", input.tool.twist.iter())?;
+    ensure_finite("tool.acceleration", input.tool.acceleration.iter())?;
+    ensure_finite("target.position", input.target.position.iter())?;
+    ensure_finite("target.velocity", input.target.velocity.iter())?;
+    ensure_finite("target_yaw", input.target_yaw.iter())?;
+    ensure_finite("time_to_range", &[input.time_to_range])?;
+    let e = &input.range_entry_pose;
+    ensure_finite("range_entry_pose", &[e.x, e.y, e.yaw])?;
+    if !(input.dt.is_finite() && input.dt > 0.0) {
+        return Err(NonFiniteInput { field: "dt" });
+    }
+    Ok(())
+}
+
+/// Integrates a tool pose by a world twist over `dt` (rotation by the exponential of ω·dt).
+pub fn integrate_tool_pose(pose: &Isometry3<f64>, twist: &Twist, dt: f64) -> Isometry3<f64> {
+    let linear = Vector3::new(twist[0], twist[1], twist[2]);
+    let angular = Vector3::new(twist[3], twist[4], twist[5]);
+    let turn = UnitQuaternion::from_rotation_matrix(&Rotation3::new(angular * dt));
+    Isometry3::from_parts(
+        (pose.translation.vector + linear * dt).into(),
+        turn * pose.rotation,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::base_controller::{
+        BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
+    };
+    use nalgebra::Vector2;
+
+    const DT: f64 = 0.02;
+
+    /// Frankie's ready tool pose in the base frame (tool point at (0.634, 0, 0.7926), top-down).
+    fn ready_tool() -> Isometry3<f64> {
+        Isometry3::from_parts(Vector3::new(0.634, 0.0, 0.7926).into(), top_down(0.0))
+    }
+
+    fn frankie_base() -> BaseModel {
+        BaseModel {
+            manipulation_range: 0.75,
+            arm_base: Vector2::new(0.15, 0.0),
+            max_speed: 1.2,
+            max_yaw_rate: 1.5,
+        }
+    }
+
+    /// One step of the closed loop, recorded.
+    struct Sample {
+        time: f64,
+        output: ReacherOutput,
+        time_to_range: f64,
+        tool: Isometry3<f64>,
+        target: Vector3<f64>,
+        base: BasePose,
+    }
+
+    /// The base controller drives a kinematic unicycle past the object while the reacher moves
+    /// an ideal tool (it integrates the commanded twist exactly).
+    fn run(target_start: Vector3<f64>, target_velocity: Vector3<f64>, seconds: f64) -> Vec<Sample> {
+        let mut base_controller =
+            BaseController::new(BaseControllerConfig::default(), frankie_base());
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        let mut tool = ToolState {
+            pose: base.isometry() * ready_tool(),
+            twist: Twist::zeros(),
+            acceleration: Vector6::zeros(),
+        };
+        let mut samples = Vec::new();
+        for k in 0..(seconds / DT) as usize {
+            let time = k as f64 * DT;
+            let target = TargetEstimate {
+                position: target_start + target_velocity * time,
+                velocity: target_velocity,
+            };
+            let base_out = base_controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target,
+                    next_target: Vector3::new(6.0, 0.0, 0.35),
+                })
+                .unwrap();
+            let output = reacher
+                .step(&ReacherInput {
+                    task_index: 0,
+                    base,
+                    base_velocity: base_out.command,
+                    tool,
+                    target,
+                    target_yaw: None,
+                    time_to_range: base_out.time_to_range,
+                    range_entry_pose: base_out.range_entry_pose,
+                    dt: DT,
+                })
+                .unwrap();
+            samples.push(Sample {
+                time,
+                output,
+                time_to_range: base_out.time_to_range,
+                tool: tool.pose,
+                target: target.position,
+                base,
+            });
+            tool = ToolState {
+                pose: integrate_tool_pose(&tool.pose, &output.twist, DT),
+                twist: output.twist,
+                acceleration: output.acceleration,
+            };
+            let base_velocity = base_out.command;
+            base.yaw = wrap_angle(base.yaw + base_velocity.omega * DT);
+            base.x += base_velocity.v * DT * base.yaw.cos();
+            base.y += base_velocity.v * DT * base.yaw.sin();
+        }
+        samples
+    }
+
+    fn trigger_index(samples: &[Sample]) -> usize {
+        samples
+            .iter()
+            .position(|s| s.output.mode == ReachMode::Reaching)
+            .expect("the reacher never started")
+    }
+
+    #[test]
+    fn holds_the_ready_pose_until_the_transit_time_trigger() {
+        let samples = run(Vector3::new(3.0, 0.0, 0.45), Vector3::zeros(), 14.0);
+        let start = trigger_index(&samples);
+        // The arm waits: it does not start in the first second, with the target 3 m away.
+        assert!(
+            samples[start].time > 1.0,
+            "started at {:.2} s",
+            samples[start].time
+        );
+        for s in &samples[..start] {
+            assert!(s.time_to_range > s.output.transit_time);
+            let ready = s.base.isometry() * ready_tool();
+            assert!(
+                (ready.translation.vector - s.tool.translation.vector).norm() < 1e-3,
+                "drifted from the ready pose at {:.2} s",
+                s.time
+            );
+            assert!(ready.rotation.angle_to(&s.tool.rotation) < 1e-3);
+        }
+        // It starts at the first step where t_R ≤ t_A, and stays started even if that flips back.
+        let first = &samples[start];
+        assert!(first.time_to_range <= first.output.transit_time);
+        assert!(
+            samples[start..]
+                .iter()
+                .all(|s| s.output.mode == ReachMode::Reaching)
+        );
+        // Independent check of t_A at the trigger. The base passes the object (3 m ahead) with it
+        // 0.6 m to its right and enters range when the arm base (0.15 m ahead of the base) is
+        // 0.75 m from it: the pre-grasp point is then at (0.6, −0.6, 0.5) in the base frame.
+        // From the ready tool point (0.634, 0, 0.7926) that is 0.668 m, at k_A·v_F = 0.15 m/s.
+        let distance = (Vector3::new(0.6, -0.6, 0.5) - Vector3::new(0.634, 0.0, 0.7926)).norm();
+        let expected: f64 = distance / (0.5 * 0.3);
+        assert!(
+            (first.output.transit_time - expected).abs() < 0.05,
+            "t_A {:.3} s at the trigger, expected {expected:.3} s",
+            first.output.transit_time
+        );
+        // t_R falls by DT per step, so at the first step with t_R ≤ t_A it is within DT of t_A.
+        assert!((first.time_to_range - expected).abs() < DT + 0.05);
+    }
+
+    /// Runs the loop and checks that the tool reaches the pre-grasp point above the object, with
+    /// the object's velocity, when the base enters manipulation range.
+    fn assert_arrives(target_velocity: Vector3<f64>) {
+        let samples = run(Vector3::new(3.0, 0.0, 0.45), target_velocity, 12.0);
+        let entry = samples
+            .iter()
+            .position(|s| s.time_to_range == 0.0)
+            .expect("never in range");
+        let pregrasp = Vector3::z() * ReacherConfig::default().pregrasp_height;
+        let error = |s: &Sample| ((s.target + pregrasp) - s.tool.translation.vector).norm();
+        let arrival = samples
+            .iter()
+            .position(|s| error(s) < 0.005)
+            .expect("never arrived");
+        let (arrived, entered) = (samples[arrival].time, samples[entry].time);
+        assert!(
+            arrived <= entered + 0.2,
+            "arrived at {arrived:.2} s, range entry at {entered:.2} s"
+        );
+        assert!(
+            arrived > entered - 1.0,
+            "arrived at {arrived:.2} s, long before {entered:.2} s"
+        );
+        // From one trajectory floor (0.2 s) after range entry, the tool stays on the moving
+        // pre-grasp point with the object's velocity, top-down.
+        let settled = entry + 10;
+        for s in &samples[settled..settled + 25] {
+            assert!(
+                error(s) < 0.002,
+                "position error {:.4} m at {:.2} s",
+                error(s),
+                s.time
+            );
+            let velocity = s.output.twist.fixed_rows::<3>(0).into_owned();
+            assert!(
+                (velocity - target_velocity).norm() < 0.005,
+                "velocity {velocity:?} vs object {target_velocity:?} at {:.2} s",
+                s.time
+            );
+            let down = s.tool.rotation * Vector3::z();
+            assert!(down.z < -0.999, "gripper not top-down: {down:?}");
+        }
+        // Never NaN, and no wild speeds on the way.
+        for s in &samples {
+            assert!(s.output.twist.iter().all(|v| v.is_finite()));
+            assert!(s.output.twist.fixed_rows::<3>(0).norm() < 1.0);
+        }
+    }
+
+    #[test]
+    fn arrives_on_a_static_object() {
+        assert_arrives(Vector3::zeros());
+    }
+
+    #[test]
+    fn arrives_on_a_moving_object_with_its_velocity() {
+        assert_arrives(Vector3::new(0.0, 0.03, 0.0));
+        assert_arrives(Vector3::new(-0.03, 0.0, 0.0));
+    }
+
+    #[test]
+    fn the_command_is_the_trajectory_velocity_one_step_ahead() {
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let tool = ToolState {
+            pose: ready_tool(),
+            twist: Twist::zeros(),
+            acceleration: Vector6::zeros(),
+        };
+        let target = TargetEstimate::fixed(Vector3::new(0.6, -0.6, 0.45));
+        let input = ReacherInput {
+            task_index: 0,
+            base: BasePose::default(),
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool,
+            target,
+            target_yaw: None,
+            time_to_range: 0.5,
+            range_entry_pose: BasePose::default(),
+            dt: DT,
+        };
+        let out = reacher.step(&input).unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        let expected = Quintic3::new(
+            &PointState::at_rest(tool.pose.translation.vector),
+            &PointState::at_rest(out.goal.translation.vector),
+            out.duration,
+        )
+        .unwrap()
+        .evaluate(DT);
+        let linear = out.twist.fixed_rows::<3>(0).into_owned();
+        assert!((linear - expected.velocity).norm() < 1e-12);
+        assert!(linear.norm() > 0.0);
+        // Starting from rest, a quintic's velocity at t = 0 is zero: the command is not that.
+        assert!(
+            (out.goal.translation.vector - (target.position + Vector3::z() * 0.05)).norm() < 1e-12
+        );
+    }
+
+    #[test]
+    fn the_gripper_yaw_follows_a_known_object_yaw_modulo_its_symmetry() {
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let out = reacher
+            .step(&ReacherInput {
+                task_index: 0,
+                base: BasePose::default(),
+                base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+                tool: ToolState {
+                    pose: ready_tool(),
+                    twist: Twist::zeros(),
+                    acceleration: Vector6::zeros(),
+                },
+                target: TargetEstimate::fixed(Vector3::new(0.6, -0.6, 0.45)),
+                target_yaw: Some(1.9),
+                time_to_range: 0.0,
+                range_entry_pose: BasePose::default(),
+                dt: DT,
+            })
+            .unwrap();
+        // 1.9 − π/2 = 0.329 rad is the equivalent closest to the current yaw of 0.
+        let yaw = tool_yaw(&out.goal.rotation);
+        assert!(
+            (yaw - (1.9 - std::f64::consts::FRAC_PI_2)).abs() < 1e-9,
+            "{yaw}"
+        );
+    }
+
+    #[test]
+    fn frankie_ready_tool_is_the_ready_pose_tool_point_top_down() {
+        let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let robot = Robot::load(&config_dir, "frankie").unwrap();
+        let reacher = Reacher::new(ReacherConfig::default(), &robot);
+        let ready = reacher.ready_tool();
+        assert!((ready.translation.vector - Vector3::new(0.634, 0.0, 0.7926)).norm() < 1e-3);
+        let down = ready.rotation * Vector3::z();
+        eprintln!("ready tool z {down:?}, yaw {}", tool_yaw(&ready.rotation));
+        assert!(down.z < -0.99, "ready tool z axis {down:?}");
+    }
+
+    #[test]
+    fn a_degenerate_configuration_still_gives_finite_outputs() {
+        let config = ReacherConfig {
+            arm_speed_ratio: 0.0,
+            min_duration: 0.0,
+            min_base_speed: 0.0,
+            ..ReacherConfig::default()
+        };
+        let mut reacher = Reacher::with_ready_tool(config, ready_tool());
+        let out = reacher
+            .step(&ReacherInput {
+                task_index: 0,
+                base: BasePose::default(),
+                base_velocity: BaseVelocity::default(),
+                tool: ToolState {
+                    pose: ready_tool(),
+                    twist: Twist::zeros(),
+                    acceleration: Vector6::zeros(),
+                },
+                target: TargetEstimate::fixed(ready_tool().translation.vector),
+                target_yaw: None,
+                time_to_range: 0.0,
+                range_entry_pose: BasePose::default(),
+                dt: DT,
+            })
+            .unwrap();
+        assert!(
+            out.twist
+                .iter()
+                .chain(out.acceleration.iter())
+                .all(|v| v.is_finite())
+        );
+        assert!(out.transit_time.is_finite() && out.duration.is_finite());
+    }
+
+    #[test]
+    fn a_new_task_starts_by_holding_again() {
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let mut input = ReacherInput {
+            task_index: 0,
+            base: BasePose::default(),
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool: ToolState {
+                pose: ready_tool(),
+                twist: Twist::zeros(),
+                acceleration: Vector6::zeros(),
+            },
+            target: TargetEstimate::fixed(Vector3::new(0.6, -0.6, 0.45)),
+            target_yaw: None,
+            time_to_range: 0.0,
+            range_entry_pose: BasePose::default(),
+            dt: DT,
+        };
+        assert_eq!(reacher.step(&input).unwrap().mode, ReachMode::Reaching);
+        input.task_index = 1;
+        input.time_to_range = 30.0;
+        assert_eq!(reacher.step(&input).unwrap().mode, ReachMode::Holding);
+        input.dt = 0.0;
+        assert_eq!(reacher.step(&input).unwrap_err().field, "dt");
+        input.dt = DT;
+        input.tool.twist[4] = f64::NAN;
+        assert_eq!(reacher.step(&input).unwrap_err().field, "tool.twist");
+    }
+
+    #[test]
+    fn config_rejects_unknown_keys_and_a_pregrasp_beyond_the_hand_over() {
+        let file = Path::new("controllers.toml");
+        let err = ModelError::parse_toml_str::<ReacherConfig>(file, "k_a = 0.5\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("controllers.toml") && err.contains("k_a"),
+            "{err}"
+        );
+        let config: ReacherConfig =
+            ModelError::parse_toml_str(file, "pregrasp_height = 0.12\n").unwrap();
+        let err = config.validate(file).unwrap_err().to_string();
+        assert!(err.contains("reacher.pregrasp_height"), "{err}");
+        ReacherConfig::default().validate(file).unwrap();
+    }
+}
