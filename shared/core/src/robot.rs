@@ -39,10 +39,11 @@ pub struct RobotConfig {
     /// (0.08 for Frankie, as in the paper; for the other robots the same fraction of the arm's
     /// best top-down manipulability at table height).
     pub manipulability_threshold: f64,
-    /// Manipulation range, m: the horizontal distance from the arm base (the first revolute arm
-    /// joint's axis) within which a top-down grasp at table height (0.45 m) reaches manipulability
-    /// above `manipulability_threshold`. Derived from the model; `shared/core/tests/
-    /// manipulation_range.rs` recomputes it and checks this value.
+    /// Manipulation range, m: the horizontal distance from the arm base (the first arm joint's
+    /// frame, `reach_range::arm_base_in_base_frame`) within which a top-down grasp at table height
+    /// (0.45 m) reaches manipulability above `manipulability_threshold`. Derived from the model
+    /// (`reach_range::derive_manipulation_range`); `shared/core/tests/manipulation_range.rs`
+    /// checks it.
     pub manipulation_range: f64,
 }
 

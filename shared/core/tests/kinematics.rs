@@ -326,7 +326,7 @@ fn robot_toml_with_an_unknown_key_names_the_file_and_key() {
 #[test]
 fn robot_toml_with_a_negative_range_names_the_file_and_key() {
     let dir = broken_config("negative-range", "fetch.toml", |text| {
-        text.replace("manipulation_range = 0.75", "manipulation_range = -0.75")
+        text.replace("manipulation_range = ", "manipulation_range = -")
     });
     let msg = load_error(&dir, "fetch");
     let file = dir.join("robots").join("fetch.toml");
