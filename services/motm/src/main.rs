@@ -1,5 +1,6 @@
 //! `motm`: the user-facing command-line interface of the motm stack.
 
+mod bench;
 mod config_dir;
 mod kin;
 mod plots;
@@ -58,6 +59,8 @@ struct Cli {
 enum Command {
     /// Print the tool pose, world Jacobian and manipulability of a robot at a configuration.
     Kin(kin::KinArgs),
+    /// Benchmark the control stack's hot paths (e.g. `motm bench qp --json`).
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -72,6 +75,7 @@ fn main() -> ExitCode {
     let config_dir = config_dir::resolve(cli.config_dir);
     let result = match cli.command {
         Command::Kin(args) => kin::run(&config_dir, &args).map_err(CliError::BadInput),
+        Command::Bench(args) => bench::run(&config_dir, &args).map_err(CliError::BadInput),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

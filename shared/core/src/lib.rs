@@ -8,33 +8,50 @@
 //! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
 //! - [`input_check`]: refusing non-finite controller input.
+//! - [`on_the_move`]: the four MotM modules and the QP composed into one control step.
 //! - [`mission`]: which target is current, which is next, which phase is active.
+//! - [`planning`]: the planning baseline (plan once with a QP, then track open-loop).
 //! - [`quintic`]: quintic trajectories with full boundary conditions.
 //! - [`reach_range`]: manipulation range derived from the model.
 //! - [`reacher`]: transit-time trigger and quintic reach toward the predicted object.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
+//! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
+//! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
+//! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
+//! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
 //! - [`error`]: errors that name the file and element at fault.
 
 pub mod base_controller;
 pub mod chain;
 pub mod error;
 pub mod final_phase;
+pub mod holistic;
 pub mod input_check;
 pub mod kinematics;
 pub mod mission;
+pub mod on_the_move;
+pub mod planning;
+pub mod qp_scenario;
 pub mod quintic;
 pub mod reach_range;
 pub mod reacher;
+pub mod resolver;
 pub mod robot;
+pub mod servo;
 pub mod types;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use error::ModelError;
+pub use holistic::{HolisticConfig, HolisticController, HolisticInput, HolisticOutput};
 pub use kinematics::{
     BasePose, ForwardKinematics, hessian, manipulability, manipulability_gradient,
 };
+pub use resolver::{
+    Facing, RedundancyResolver, ResolveStatus, ResolverConfig, ResolverInput, ResolverOutput,
+};
 pub use robot::{BASE_JOINTS, ROBOT_NAMES, Robot, RobotConfig};
+pub use servo::{p_servo, twist_tool_to_world, twist_world_to_tool};
 pub use types::{
     BaseVelocity, GripperCommand, RobotState, TargetEstimate, TaskProgress, Twist, wrap_angle,
 };

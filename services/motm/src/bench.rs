@@ -1,0 +1,121 @@
+//! `motm bench`: timing of the control stack's hot paths on this machine.
+//!
+//! `motm bench qp` times one redundancy-resolution QP solve on Frankie (random reachable twists
+//! with base tracking, the data of a MotM cycle) over many solves, then the whole control step
+//! (kinematics, Hessian, QP build and solve) on the same problems.
+
+use std::path::Path;
+use std::time::Instant;
+
+use clap::{Args, Subcommand};
+use motm_core::qp_scenario::{QpScenario, ScenarioConfig};
+use motm_core::{RedundancyResolver, ResolverConfig, Robot};
+use serde_json::json;
+
+/// Arguments of `motm bench`.
+#[derive(Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    command: BenchCommand,
+}
+
+/// What to benchmark.
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Time the redundancy-resolution QP (median, p99 and max µs) and the whole control step.
+    Qp(QpArgs),
+}
+
+/// Arguments of `motm bench qp`.
+#[derive(Args)]
+struct QpArgs {
+    /// Robot name.
+    #[arg(long, default_value = "frankie")]
+    robot: String,
+    /// Number of timed solves (at least 2000).
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(2000..))]
+    solves: u64,
+    /// Seed of the random problems.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object: median_us, p99_us, max_us, iterations (timed solves),
+    /// solver_iterations_median, step_median_us, step_p99_us, errors.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `motm bench`.
+pub fn run(config_dir: &Path, args: &BenchArgs) -> Result<(), String> {
+    match &args.command {
+        BenchCommand::Qp(qp) => run_qp(config_dir, qp),
+    }
+}
+
+/// Distinct problems cycled through by the timing loops.
+const PROBLEMS: usize = 2048;
+/// Untimed solves before timing starts.
+const WARM_UP: usize = 500;
+
+/// Median, 99th percentile and maximum of durations in µs (sorts `samples`).
+fn summarize(samples: &mut [f64]) -> (f64, f64, f64) {
+    samples.sort_by(f64::total_cmp);
+    let at = |p: f64| samples[((samples.len() - 1) as f64 * p).round() as usize];
+    (at(0.5), at(0.99), at(1.0))
+}
+
+fn run_qp(config_dir: &Path, args: &QpArgs) -> Result<(), String> {
+    let robot = Robot::load(config_dir, &args.robot).map_err(|e| e.to_string())?;
+    let problems = QpScenario::random_set(&robot, &ScenarioConfig::default(), PROBLEMS, args.seed);
+    let mut resolver = RedundancyResolver::for_robot(&robot, ResolverConfig::default());
+    let solves = args.solves as usize;
+
+    for problem in problems.iter().cycle().take(WARM_UP) {
+        std::hint::black_box(resolver.resolve(&problem.input()));
+    }
+    let mut solve_us = Vec::with_capacity(solves);
+    let mut solver_iterations = Vec::with_capacity(solves);
+    for problem in problems.iter().cycle().take(solves) {
+        let input = problem.input();
+        let start = Instant::now();
+        let out = resolver.resolve(&input);
+        solve_us.push(start.elapsed().as_secs_f64() * 1e6);
+        solver_iterations.push(f64::from(out.iterations));
+    }
+    let mut step_us = Vec::with_capacity(solves);
+    for problem in problems.iter().cycle().take(solves) {
+        let start = Instant::now();
+        std::hint::black_box(problem.control_step(&robot, &mut resolver));
+        step_us.push(start.elapsed().as_secs_f64() * 1e6);
+    }
+    let (median, p99, max) = summarize(&mut solve_us);
+    let (step_median, step_p99, _) = summarize(&mut step_us);
+    let (iterations_median, _, _) = summarize(&mut solver_iterations);
+    let errors = resolver.error_count();
+    if args.json {
+        println!(
+            "{}",
+            json!({
+                "robot": robot.name(),
+                "median_us": median,
+                "p99_us": p99,
+                "max_us": max,
+                "iterations": solves,
+                "solver_iterations_median": iterations_median,
+                "step_median_us": step_median,
+                "step_p99_us": step_p99,
+                "errors": errors,
+            })
+        );
+    } else {
+        println!("{} QP solve over {solves} solves:", robot.name());
+        println!("  median {median:.1} µs, p99 {p99:.1} µs, max {max:.1} µs");
+        println!("  interior-point iterations (median) {iterations_median}");
+        println!("control step (kinematics, Hessian, build, solve):");
+        println!("  median {step_median:.1} µs, p99 {step_p99:.1} µs");
+        println!("failed solves: {errors}");
+    }
+    if errors > 0 {
+        return Err(format!("{errors} benchmark problems failed to solve"));
+    }
+    Ok(())
+}

@@ -1,0 +1,324 @@
+//! The four MotM modules composed into one control step, for the in-process runner and tests.
+//!
+//! Each cycle: the mission says which task is current; the base controller drives past its
+//! target toward the next one; the reacher (reach phase) or the final-phase controller (final
+//! phase) gives the tool twist; the augmented QP resolves twist and base target into joint
+//! velocities; the mission advances on the tool-to-target distance and the final phase's
+//! progress. The deployed stack runs the same modules as separate processes.
+//!
+//! Choices:
+//! - **Reach target of a place task** is the container point raised so that the reacher's
+//!   pre-grasp point is the drop controller's release point (`drop.release_height` above the
+//!   rim): the cube then arrives over the container, not beside its rim.
+//! - **Gripper outside the final phase** follows the task: open while reaching for a pick, closed
+//!   while carrying to a place or pressing a button.
+//! - **Tool state fed back to the reacher** is the previous cycle's commanded twist and
+//!   acceleration (the smoothest replanning; see [`crate::reacher::ToolState`]).
+//! - **e_t** for the QP's 1/e_t weights is the tool's distance to the current target.
+//! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
+
+use nalgebra::{Vector3, Vector6};
+use serde::Deserialize;
+
+use crate::base_controller::{
+    BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
+};
+use crate::final_phase::{
+    FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
+};
+use crate::kinematics::BasePose;
+use crate::mission::{Mission, MissionConfig, MissionTask, Phase, TaskKind};
+use crate::reacher::{ReachMode, Reacher, ReacherConfig, ReacherInput, ToolState};
+use crate::resolver::{RedundancyResolver, ResolveStatus, ResolverConfig};
+use crate::robot::Robot;
+use crate::types::{BaseVelocity, GripperCommand, TargetEstimate, TaskProgress, Twist};
+
+/// Every tunable of the composed MotM controller, by module. Every key is optional.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnTheMoveConfig {
+    /// Mission sequencing.
+    pub mission: MissionConfig,
+    /// Base controller.
+    pub base: BaseControllerConfig,
+    /// Reacher.
+    pub reacher: ReacherConfig,
+    /// Final-phase controllers.
+    pub final_phase: FinalPhaseConfig,
+    /// Redundancy-resolution QP.
+    pub resolver: ResolverConfig,
+}
+
+/// What the controller reads each cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct OnTheMoveInput<'a> {
+    /// Time of the cycle, s.
+    pub t: f64,
+    /// Control period, s.
+    pub dt: f64,
+    /// Base pose (odometry).
+    pub base: BasePose,
+    /// Measured base velocity.
+    pub base_velocity: BaseVelocity,
+    /// Arm joint positions.
+    pub arm_q: &'a [f64],
+    /// Measured finger opening, m.
+    pub gripper_opening: f64,
+    /// Latest estimate of the current task's target (perception's, or the mission's position
+    /// when the object has not been seen).
+    pub target: TargetEstimate,
+}
+
+/// What the controller commands each cycle, plus its internals for logging.
+#[derive(Debug, Clone)]
+pub struct OnTheMoveOutput {
+    /// Base velocity command.
+    pub base: BaseVelocity,
+    /// Arm joint velocity command.
+    pub arm_qd: Vec<f64>,
+    /// Gripper command.
+    pub gripper: GripperCommand,
+    /// World twist the QP was asked for.
+    pub twist: Twist,
+    /// The base controller's velocity target.
+    pub base_target: BaseVelocity,
+    /// Index of the current task after this cycle.
+    pub task_index: usize,
+    /// Phase after this cycle.
+    pub phase: Phase,
+    /// Stage of the final-phase controller (while in the final phase).
+    pub stage: Option<FinalPhaseStage>,
+    /// Reacher mode (while reaching).
+    pub reach_mode: ReachMode,
+    /// The base controller's time-to-manipulation-range, s.
+    pub time_to_range: f64,
+    /// QP solve status.
+    pub qp_status: ResolveStatus,
+    /// QP iterations.
+    pub qp_iterations: u32,
+    /// Norm of the QP's slack.
+    pub slack_norm: f64,
+    /// Tool-to-target distance, m.
+    pub tool_to_target: f64,
+    /// A task finished this cycle (its index is `task_index − 1`).
+    pub task_done: bool,
+}
+
+/// Reactive manipulation on-the-move: mission + base controller + reacher + final phase + QP.
+pub struct OnTheMove {
+    robot: Robot,
+    config: OnTheMoveConfig,
+    mission: Mission,
+    base: BaseController,
+    reacher: Reacher,
+    final_phase: Box<dyn FinalPhaseController>,
+    resolver: RedundancyResolver,
+    last_twist: Twist,
+    last_acceleration: Vector6<f64>,
+    rejected_inputs: u64,
+}
+
+impl OnTheMove {
+    /// A controller for `robot` performing `tasks` from base position `start`.
+    pub fn new(
+        robot: Robot,
+        config: OnTheMoveConfig,
+        tasks: Vec<MissionTask>,
+        start: Vector3<f64>,
+    ) -> Self {
+        let first_kind = tasks
+            .first()
+            .map_or(FinalPhaseKind::Grasp, |t| t.kind.into());
+        Self {
+            mission: Mission::new(config.mission.clone(), tasks, start),
+            base: BaseController::new(config.base.clone(), BaseModel::from_robot(&robot)),
+            reacher: Reacher::new(config.reacher.clone(), &robot),
+            final_phase: build(first_kind, &config.final_phase),
+            resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
+            robot,
+            config,
+            last_twist: Twist::zeros(),
+            last_acceleration: Vector6::zeros(),
+            rejected_inputs: 0,
+        }
+    }
+
+    /// The mission: current task and phase.
+    pub fn mission(&self) -> &Mission {
+        &self.mission
+    }
+
+    /// The robot model.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
+    /// Cycles whose input was refused (non-finite), plus QP failures.
+    pub fn error_count(&self) -> u64 {
+        self.rejected_inputs + self.resolver.error_count()
+    }
+
+    /// The point the arm is sent to for `task` whose target estimate is `target`.
+    fn reach_target(&self, task: &MissionTask, target: &TargetEstimate) -> TargetEstimate {
+        let mut aim = *target;
+        if task.kind == TaskKind::Place {
+            aim.position.z +=
+                self.config.final_phase.drop.release_height - self.config.reacher.pregrasp_height;
+        }
+        aim
+    }
+
+    /// An all-zero command for a cycle that cannot be computed.
+    fn hold(&mut self, task_index: usize, phase: Phase) -> OnTheMoveOutput {
+        self.last_twist = Twist::zeros();
+        self.last_acceleration = Vector6::zeros();
+        OnTheMoveOutput {
+            base: BaseVelocity::default(),
+            arm_qd: vec![0.0; self.robot.arm_dof()],
+            gripper: self.resting_gripper(),
+            twist: Twist::zeros(),
+            base_target: BaseVelocity::default(),
+            task_index,
+            phase,
+            stage: None,
+            reach_mode: ReachMode::Holding,
+            time_to_range: 0.0,
+            qp_status: ResolveStatus::InvalidInput,
+            qp_iterations: 0,
+            slack_norm: 0.0,
+            tool_to_target: f64::INFINITY,
+            task_done: false,
+        }
+    }
+
+    /// The gripper command outside the final phase.
+    fn resting_gripper(&self) -> GripperCommand {
+        match self.mission.current_task().map(|t| t.kind) {
+            Some(TaskKind::Pick) | None => GripperCommand::Open,
+            Some(TaskKind::Place) | Some(TaskKind::PressButton) => GripperCommand::Close,
+        }
+    }
+
+    /// One control cycle.
+    pub fn step(&mut self, input: &OnTheMoveInput<'_>) -> OnTheMoveOutput {
+        let task_index = self.mission.task_index();
+        let phase = self.mission.phase();
+        let Some(task) = self.mission.current_task().copied() else {
+            return self.hold(task_index, Phase::Complete);
+        };
+        let finite = input.arm_q.iter().all(|q| q.is_finite())
+            && input.arm_q.len() == self.robot.arm_dof()
+            && input
+                .target
+                .position
+                .iter()
+                .chain(input.target.velocity.iter())
+                .all(|v| v.is_finite())
+            && input.gripper_opening.is_finite();
+        if !finite {
+            self.rejected_inputs += 1;
+            return self.hold(task_index, phase);
+        }
+        let next = self.mission.next_waypoint(&task.position);
+        let Ok(base_out) = self.base.step(&BaseControllerInput {
+            task_index,
+            base: input.base,
+            target: input.target,
+            next_target: next,
+        }) else {
+            self.rejected_inputs += 1;
+            return self.hold(task_index, phase);
+        };
+        let tool_pose = self.robot.tool_pose(&input.base, input.arm_q);
+        let aim = self.reach_target(&task, &input.target);
+        let tool_to_target = (tool_pose.translation.vector - aim.position).norm();
+
+        let wanted_kind = FinalPhaseKind::from(task.kind);
+        let (twist, gripper, progress, stage, reach_mode) = match phase {
+            Phase::Final => {
+                if self.final_phase.kind() != wanted_kind {
+                    self.final_phase = build(wanted_kind, &self.config.final_phase);
+                }
+                let out = self.final_phase.step(&FinalPhaseInput {
+                    t: input.t,
+                    tool_pose,
+                    base_pose: input.base,
+                    base_velocity: input.base_velocity,
+                    target: input.target,
+                    gripper_opening: input.gripper_opening,
+                });
+                self.last_acceleration = (out.twist - self.last_twist) / input.dt;
+                (
+                    out.twist,
+                    out.gripper,
+                    out.progress,
+                    Some(out.stage),
+                    ReachMode::Holding,
+                )
+            }
+            _ => {
+                let reached = self.reacher.step(&ReacherInput {
+                    task_index,
+                    base: input.base,
+                    base_velocity: base_out.command,
+                    tool: ToolState {
+                        pose: tool_pose,
+                        twist: self.last_twist,
+                        acceleration: self.last_acceleration,
+                    },
+                    target: aim,
+                    target_yaw: None,
+                    time_to_range: base_out.time_to_range,
+                    range_entry_pose: base_out.range_entry_pose,
+                    dt: input.dt,
+                });
+                let Ok(out) = reached else {
+                    self.rejected_inputs += 1;
+                    return self.hold(task_index, phase);
+                };
+                self.last_acceleration = out.acceleration;
+                (
+                    out.twist,
+                    self.resting_gripper(),
+                    TaskProgress::Active,
+                    None,
+                    out.mode,
+                )
+            }
+        };
+        self.last_twist = twist;
+
+        let resolved = self.resolver.resolve_motm(
+            &self.robot,
+            &input.base,
+            input.arm_q,
+            twist,
+            tool_to_target,
+            Some(base_out.command),
+        );
+        let status = self.mission.step(tool_to_target, progress);
+        if status.changed && status.task_index != task_index {
+            // A new task starts: its final-phase controller begins from its first stage.
+            if let Some(next_task) = self.mission.current_task() {
+                self.final_phase = build(next_task.kind.into(), &self.config.final_phase);
+            }
+        }
+        OnTheMoveOutput {
+            base: resolved.base,
+            arm_qd: resolved.arm_qd,
+            gripper,
+            twist,
+            base_target: base_out.command,
+            task_index: status.task_index,
+            phase: status.phase,
+            stage,
+            reach_mode,
+            time_to_range: base_out.time_to_range,
+            qp_status: resolved.status,
+            qp_iterations: resolved.iterations,
+            slack_norm: resolved.slack.norm(),
+            tool_to_target,
+            task_done: status.task_index != task_index,
+        }
+    }
+}
