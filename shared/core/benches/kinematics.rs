@@ -1,4 +1,8 @@
-//! Frankie tool pose + world Jacobian + manipulability gradient.
+//! Frankie tool pose + world Jacobian + manipulability gradient, in one iteration.
+//!
+//! Criterion prints the mean. The median and p99 come from the per-sample means
+//! (`times[i] / iters[i]`) in `target/criterion/<bench>/new/sample.json`; the median is also in
+//! `estimates.json`.
 
 use std::hint::black_box;
 use std::path::Path;

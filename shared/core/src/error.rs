@@ -24,8 +24,10 @@ pub enum ModelError {
         source: std::io::Error,
     },
     /// A robot name that has no configuration.
-    #[error("unknown robot '{name}': expected one of {}", known.join(", "))]
+    #[error("{}: unknown robot '{name}': expected one of {}", file.display(), known.join(", "))]
     UnknownRobot {
+        /// The configuration file the name would need (`<config_dir>/robots/<name>.toml`).
+        file: PathBuf,
         /// The name that was asked for.
         name: String,
         /// The names that exist.

@@ -35,9 +35,15 @@ pub struct RobotConfig {
     pub ready_pose: Vec<f64>,
     /// Base footprint length and width, m.
     pub footprint: [f64; 2],
-    /// Manipulation range, m: the horizontal distance from the arm base within which a top-down
-    /// grasp at table height reaches manipulability above the threshold (0.08 for Frankie).
-    /// Derived from the model; see the kinematics tests that check it.
+    /// Arm manipulability a grasp must keep for its target to count as within manipulation range
+    /// (0.08 for Frankie, as in the paper; for the other robots the same fraction of the arm's
+    /// best top-down manipulability at table height).
+    pub manipulability_threshold: f64,
+    /// Manipulation range, m: the horizontal distance from the arm base (the first arm joint's
+    /// frame, `reach_range::arm_base_in_base_frame`) within which a top-down grasp at table height
+    /// (0.45 m) reaches manipulability above `manipulability_threshold`. Derived from the model
+    /// (`reach_range::derive_manipulation_range`); `shared/core/tests/manipulation_range.rs`
+    /// checks it.
     pub manipulation_range: f64,
 }
 
@@ -55,13 +61,15 @@ pub struct Robot {
 impl Robot {
     /// Loads the robot called `name` from `<config_dir>/robots/<name>.toml`.
     pub fn load(config_dir: &Path, name: &str) -> Result<Self, ModelError> {
+        let file = config_dir.join("robots").join(format!("{name}.toml"));
         if !ROBOT_NAMES.contains(&name) {
             return Err(ModelError::UnknownRobot {
+                file,
                 name: name.to_string(),
                 known: ROBOT_NAMES.iter().map(|s| s.to_string()).collect(),
             });
         }
-        Self::from_file(&config_dir.join("robots").join(format!("{name}.toml")))
+        Self::from_file(&file)
     }
 
     /// Loads a robot from its TOML configuration file.
@@ -99,6 +107,21 @@ impl Robot {
                     urdf_path,
                     format!("joint '{name}' type"),
                     "base joints must be a yaw (continuous) then a forward (prismatic) joint",
+                ));
+            }
+        }
+        for (key, value) in [
+            (
+                "manipulability_threshold",
+                self.config.manipulability_threshold,
+            ),
+            ("manipulation_range", self.config.manipulation_range),
+        ] {
+            if !(value > 0.0 && value.is_finite()) {
+                return Err(ModelError::invalid(
+                    &self.config_path,
+                    key,
+                    format!("must be positive and finite, got {value}"),
                 ));
             }
         }
