@@ -430,6 +430,10 @@ pub struct Heartbeat {
     pub p99_cycle_ns: u64,
     /// Longest cycle time since start, ns.
     pub max_cycle_ns: u64,
+    /// Configured cycle period, ns (0 for purely event-driven processes).
+    pub period_ns: u64,
+    /// Monotonic time of the last deadline miss, ns (0 when none).
+    pub last_deadline_miss_ns: u64,
     /// Process name, UTF-8, zero padded.
     pub process_name: [u8; PROCESS_NAME_BYTES],
 }
