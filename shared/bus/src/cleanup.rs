@@ -68,3 +68,23 @@ fn collect_prefixed(dir: &Path, prefix: &str, found: &mut Vec<PathBuf>) {
         }
     }
 }
+
+/// Removes the one resource iceoryx2 keeps after every process of a prefix has left: its
+/// persistent node-counter segment (`<prefix>…node.<version>.global_mgmt` in `/dev/shm`).
+/// A supervisor or test calls this at the very end of a run that used its own prefix, so
+/// that the run leaves nothing behind. Returns whether a segment was removed.
+///
+/// # Safety
+///
+/// No process may be using the prefix of `ipc` any more (every node dropped or its process
+/// reaped): a process still attached would have shared memory removed under it.
+pub unsafe fn remove_domain(ipc: &IpcConfig) -> Result<bool, BusError> {
+    let config = ipc.iceoryx2()?;
+    // SAFETY: the caller guarantees that no process uses this prefix.
+    unsafe { iceoryx2::testing::remove_global_mgmt_segment::<ipc::Service>(&config) }.map_err(|e| {
+        BusError::Node {
+            process: "(cleanup)".to_owned(),
+            detail: format!("cannot remove the node-counter segment: {e:?}"),
+        }
+    })
+}

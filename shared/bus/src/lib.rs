@@ -13,7 +13,7 @@ mod ports;
 mod service_loop;
 mod stats;
 
-pub use cleanup::{CleanupReport, cleanup_dead_nodes, shared_memory_entries};
+pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
 pub use clock::monotonic_now_ns;
 pub use heartbeat::HeartbeatPublisher;
 pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};

@@ -79,8 +79,10 @@ fn open_service<M: Message>(
     bus: &Bus,
     name: &str,
     qos: &Qos,
-) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, M, ()>, BusError>
-{
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, M, ()>,
+    BusError,
+> {
     bus.node
         .service_builder(&Bus::service_name(name)?)
         .publish_subscribe::<M>()
@@ -207,7 +209,11 @@ impl<M: Message> Publisher<M> {
     /// Publishes a sample built in place in shared memory: the payload starts all-zero,
     /// `fill` writes it, then the header is stamped. Use this for large payloads (camera
     /// images), which should never be built on the stack.
-    pub fn publish_with(&mut self, stamp: Stamp, fill: impl FnOnce(&mut M)) -> Result<(), BusError> {
+    pub fn publish_with(
+        &mut self,
+        stamp: Stamp,
+        fill: impl FnOnce(&mut M),
+    ) -> Result<(), BusError> {
         let mut sample = self
             .ports
             .publisher
@@ -246,7 +252,9 @@ impl<M: Message> Publisher<M> {
     ) -> Result<(), BusError> {
         sample.send().map_err(|e| port_error(&self.service, e))?;
         if let Some(notifier) = &self.ports.notifier {
-            notifier.notify().map_err(|e| port_error(&self.service, e))?;
+            notifier
+                .notify()
+                .map_err(|e| port_error(&self.service, e))?;
         }
         Ok(())
     }
@@ -504,6 +512,11 @@ impl<M: Message> Latest<M> {
     pub fn age_ns(&self, now_ns: u64) -> Option<u64> {
         self.get()
             .map(|m| now_ns.saturating_sub(m.header().stamp_ns))
+    }
+
+    /// Id of the publisher that sent the newest value (changes when it restarts).
+    pub fn publisher_id(&self) -> Option<u128> {
+        self.current.as_ref().map(Received::publisher_id)
     }
 
     /// The underlying subscriber (counters, listener).

@@ -159,7 +159,11 @@ impl<'bus> ServiceLoop<'bus> {
             .attach_notification(trigger.listener())
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         let housekeeping = waitset
-            .attach_interval(self.config.heartbeat_period.min(self.config.connection_refresh))
+            .attach_interval(
+                self.config
+                    .heartbeat_period
+                    .min(self.config.connection_refresh),
+            )
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         let mut stopped = false;
         let result = waitset.wait_and_process(|id| {

@@ -110,8 +110,13 @@ pub unsafe trait Message: ZeroCopySend + Copy + core::fmt::Debug + 'static {
     /// Full receive-side validation: header ([`SCHEMA_VERSION`], stamp not after `now_ns`,
     /// sequence number after `last_seq`) and then every field.
     fn validate(&self, now_ns: u64, last_seq: Option<u64>) -> Result<(), Rejection> {
-        self.header()
-            .validate(Check { message: Self::NAME }, now_ns, last_seq)?;
+        self.header().validate(
+            Check {
+                message: Self::NAME,
+            },
+            now_ns,
+            last_seq,
+        )?;
         self.validate_fields()
     }
 

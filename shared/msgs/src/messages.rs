@@ -114,7 +114,11 @@ fn padding(check: Check, value: u32) -> Result<(), Rejection> {
     if value == 0 {
         Ok(())
     } else {
-        Err(check.reject("reserved", None, RejectReason::Inconsistent("padding must be zero")))
+        Err(check.reject(
+            "reserved",
+            None,
+            RejectReason::Inconsistent("padding must be zero"),
+        ))
     }
 }
 
@@ -183,11 +187,26 @@ pub struct BaseOdometry {
 }
 
 message!(BaseOdometry, |m, c| {
-    c.in_range("x", m.x, -envelope::WORLD_POSITION, envelope::WORLD_POSITION)?;
-    c.in_range("y", m.y, -envelope::WORLD_POSITION, envelope::WORLD_POSITION)?;
+    c.in_range(
+        "x",
+        m.x,
+        -envelope::WORLD_POSITION,
+        envelope::WORLD_POSITION,
+    )?;
+    c.in_range(
+        "y",
+        m.y,
+        -envelope::WORLD_POSITION,
+        envelope::WORLD_POSITION,
+    )?;
     c.in_range("yaw", m.yaw, -core::f64::consts::PI, core::f64::consts::PI)?;
     c.in_range("v", m.v, -envelope::BASE_SPEED, envelope::BASE_SPEED)?;
-    c.in_range("omega", m.omega, -envelope::ANGULAR_SPEED, envelope::ANGULAR_SPEED)
+    c.in_range(
+        "omega",
+        m.omega,
+        -envelope::ANGULAR_SPEED,
+        envelope::ANGULAR_SPEED,
+    )
 });
 
 /// Base velocity (unicycle): the base planner's target, the QP's command to the base driver,
@@ -206,7 +225,12 @@ pub struct BaseVelocityCommand {
 
 message!(BaseVelocityCommand, |m, c| {
     c.in_range("v", m.v, -envelope::BASE_SPEED, envelope::BASE_SPEED)?;
-    c.in_range("omega", m.omega, -envelope::ANGULAR_SPEED, envelope::ANGULAR_SPEED)
+    c.in_range(
+        "omega",
+        m.omega,
+        -envelope::ANGULAR_SPEED,
+        envelope::ANGULAR_SPEED,
+    )
 });
 
 /// Arm joint velocity command: from the QP to the arm driver, and from the driver to the
@@ -302,7 +326,11 @@ impl TwistCommand {
 message!(TwistCommand, |m, c| {
     c.code::<TaskPhase>("phase", m.phase)?;
     for i in 0..6 {
-        let max = if i < 3 { envelope::EE_SPEED } else { envelope::ANGULAR_SPEED };
+        let max = if i < 3 {
+            envelope::EE_SPEED
+        } else {
+            envelope::ANGULAR_SPEED
+        };
         c.in_range_at("twist", Some(i), m.twist[i], -max, max)?;
     }
     Ok(())
@@ -356,7 +384,11 @@ pub struct BasePlan {
 }
 
 message!(BasePlan, |m, c| {
-    c.all_within("closest_approach", &m.closest_approach[..2], envelope::WORLD_POSITION)?;
+    c.all_within(
+        "closest_approach",
+        &m.closest_approach[..2],
+        envelope::WORLD_POSITION,
+    )?;
     c.in_range_at(
         "closest_approach",
         Some(2),
@@ -364,7 +396,12 @@ message!(BasePlan, |m, c| {
         -core::f64::consts::PI,
         core::f64::consts::PI,
     )?;
-    c.in_range("time_to_range", m.time_to_range, 0.0, envelope::TIME_TO_RANGE)
+    c.in_range(
+        "time_to_range",
+        m.time_to_range,
+        0.0,
+        envelope::TIME_TO_RANGE,
+    )
 });
 
 /// One palm-camera frame, RGB8, row-major, written in place in shared memory.
@@ -393,8 +430,18 @@ impl core::fmt::Debug for CameraImage {
 }
 
 message!(CameraImage, |m, c| {
-    c.in_range("width", f64::from(m.width), CAMERA_WIDTH as f64, CAMERA_WIDTH as f64)?;
-    c.in_range("height", f64::from(m.height), CAMERA_HEIGHT as f64, CAMERA_HEIGHT as f64)
+    c.in_range(
+        "width",
+        f64::from(m.width),
+        CAMERA_WIDTH as f64,
+        CAMERA_WIDTH as f64,
+    )?;
+    c.in_range(
+        "height",
+        f64::from(m.height),
+        CAMERA_HEIGHT as f64,
+        CAMERA_HEIGHT as f64,
+    )
 });
 
 code_enum!(
@@ -541,7 +588,11 @@ message!(MissionState, |m, c| {
     }
     c.code::<TaskKindCode>("task_kind", m.task_kind)?;
     c.code::<TaskPhase>("phase", m.phase)?;
-    c.all_within("current_target", &m.current_target, envelope::WORLD_POSITION)?;
+    c.all_within(
+        "current_target",
+        &m.current_target,
+        envelope::WORLD_POSITION,
+    )?;
     c.all_within("next_target", &m.next_target, envelope::WORLD_POSITION)?;
     flag(c, "has_next", m.has_next)?;
     padding(c, m.reserved)
@@ -654,5 +705,6 @@ pub struct ActiveController {
 }
 
 message!(ActiveController, |m, c| {
-    c.code::<ControllerVariant>("variant", m.variant).map(|_| ())
+    c.code::<ControllerVariant>("variant", m.variant)
+        .map(|_| ())
 });

@@ -70,9 +70,12 @@ fn header_rejects_wrong_schema_version() {
 fn header_rejects_a_timestamp_in_the_future_but_accepts_now() {
     let mut m = joint_state();
     m.header.stamp_ns = NOW + 1;
-    assert_rejected(&m, "header.stamp_ns", None, |r| {
-        matches!(r, RejectReason::FutureTimestamp { stamp_ns, now_ns } if *stamp_ns == NOW + 1 && *now_ns == NOW)
-    });
+    assert_rejected(
+        &m,
+        "header.stamp_ns",
+        None,
+        |r| matches!(r, RejectReason::FutureTimestamp { stamp_ns, now_ns } if *stamp_ns == NOW + 1 && *now_ns == NOW),
+    );
     m.header.stamp_ns = NOW;
     assert_eq!(check(&m), Ok(()));
 }
@@ -86,7 +89,10 @@ fn header_rejects_a_sequence_number_that_does_not_move_forward() {
         assert_eq!(r.field, "header.seq");
         assert_eq!(
             r.reason,
-            RejectReason::SequenceNotIncreasing { seq: 5, last_seq: last }
+            RejectReason::SequenceNotIncreasing {
+                seq: 5,
+                last_seq: last
+            }
         );
     }
 }
@@ -140,9 +146,27 @@ fn gripper_state_rejects_bad_fields() {
         reserved: 0,
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&GripperState { width: -0.01, ..ok }, "width", None, out_of_range);
-    assert_rejected(&GripperState { width: f64::NAN, ..ok }, "width", None, not_finite);
-    assert_rejected(&GripperState { grasping: 2, ..ok }, "grasping", None, unknown_code);
+    assert_rejected(
+        &GripperState { width: -0.01, ..ok },
+        "width",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &GripperState {
+            width: f64::NAN,
+            ..ok
+        },
+        "width",
+        None,
+        not_finite,
+    );
+    assert_rejected(
+        &GripperState { grasping: 2, ..ok },
+        "grasping",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]
@@ -158,9 +182,22 @@ fn base_odometry_rejects_bad_fields() {
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(&BaseOdometry { yaw: 3.2, ..ok }, "yaw", None, out_of_range);
     assert_rejected(&BaseOdometry { x: 1e4, ..ok }, "x", None, out_of_range);
-    assert_rejected(&BaseOdometry { y: f64::NEG_INFINITY, ..ok }, "y", None, not_finite);
+    assert_rejected(
+        &BaseOdometry {
+            y: f64::NEG_INFINITY,
+            ..ok
+        },
+        "y",
+        None,
+        not_finite,
+    );
     assert_rejected(&BaseOdometry { v: f64::NAN, ..ok }, "v", None, not_finite);
-    assert_rejected(&BaseOdometry { omega: 11.0, ..ok }, "omega", None, out_of_range);
+    assert_rejected(
+        &BaseOdometry { omega: 11.0, ..ok },
+        "omega",
+        None,
+        out_of_range,
+    );
 }
 
 #[test]
@@ -171,8 +208,21 @@ fn base_velocity_command_rejects_bad_fields() {
         omega: 0.1,
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&BaseVelocityCommand { v: 4.0, ..ok }, "v", None, out_of_range);
-    assert_rejected(&BaseVelocityCommand { omega: f64::INFINITY, ..ok }, "omega", None, not_finite);
+    assert_rejected(
+        &BaseVelocityCommand { v: 4.0, ..ok },
+        "v",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &BaseVelocityCommand {
+            omega: f64::INFINITY,
+            ..ok
+        },
+        "omega",
+        None,
+        not_finite,
+    );
 }
 
 #[test]
@@ -193,7 +243,15 @@ fn arm_velocity_command_rejects_bad_fields() {
     let mut m = ok;
     m.velocity[0] = 20.0;
     assert_rejected(&m, "velocity", Some(0), out_of_range);
-    assert_rejected(&ArmVelocityCommand { joint_count: 9, ..ok }, "joint_count", None, out_of_range);
+    assert_rejected(
+        &ArmVelocityCommand {
+            joint_count: 9,
+            ..ok
+        },
+        "joint_count",
+        None,
+        out_of_range,
+    );
 }
 
 #[test]
@@ -232,7 +290,12 @@ fn twist_command_rejects_bad_fields() {
     let mut m = ok;
     m.twist[3] = 5.0;
     assert_eq!(check(&m), Ok(()));
-    assert_rejected(&TwistCommand { phase: 7, ..ok }, "phase", None, unknown_code);
+    assert_rejected(
+        &TwistCommand { phase: 7, ..ok },
+        "phase",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]
@@ -247,7 +310,10 @@ fn target_estimate_rejects_bad_fields() {
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
-        &TargetEstimate { image_stamp_ns: ok.header.stamp_ns + 1, ..ok },
+        &TargetEstimate {
+            image_stamp_ns: ok.header.stamp_ns + 1,
+            ..ok
+        },
         "image_stamp_ns",
         None,
         inconsistent,
@@ -258,7 +324,12 @@ fn target_estimate_rejects_bad_fields() {
     let mut m = ok;
     m.velocity[1] = -6.0;
     assert_rejected(&m, "velocity", Some(1), out_of_range);
-    assert_rejected(&TargetEstimate { visible: 5, ..ok }, "visible", None, unknown_code);
+    assert_rejected(
+        &TargetEstimate { visible: 5, ..ok },
+        "visible",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]
@@ -269,7 +340,15 @@ fn base_plan_rejects_bad_fields() {
         time_to_range: 1.5,
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&BasePlan { time_to_range: -0.1, ..ok }, "time_to_range", None, out_of_range);
+    assert_rejected(
+        &BasePlan {
+            time_to_range: -0.1,
+            ..ok
+        },
+        "time_to_range",
+        None,
+        out_of_range,
+    );
     let mut m = ok;
     m.closest_approach[2] = 4.0;
     assert_rejected(&m, "closest_approach", Some(2), out_of_range);
@@ -285,7 +364,10 @@ fn camera_image_rejects_a_wrong_size() {
     m.width = CAMERA_WIDTH as u32;
     m.height = CAMERA_HEIGHT as u32;
     assert_eq!(check(&m), Ok(()));
-    assert_eq!(core::mem::size_of::<CameraImage>(), 24 + 8 + CAMERA_IMAGE_BYTES);
+    assert_eq!(
+        core::mem::size_of::<CameraImage>(),
+        24 + 8 + CAMERA_IMAGE_BYTES
+    );
     m.width = 160;
     assert_rejected(&m, "width", None, out_of_range);
     m.width = CAMERA_WIDTH as u32;
@@ -311,7 +393,15 @@ fn heartbeat_rejects_bad_fields() {
     assert_eq!(ok.process_name(), "qp-resolver");
     assert_eq!(ok.state(), Some(ProcessState::Running));
     assert_rejected(&Heartbeat { state: 3, ..ok }, "state", None, unknown_code);
-    assert_rejected(&Heartbeat { deadline_misses: 101, ..ok }, "deadline_misses", None, inconsistent);
+    assert_rejected(
+        &Heartbeat {
+            deadline_misses: 101,
+            ..ok
+        },
+        "deadline_misses",
+        None,
+        inconsistent,
+    );
     let mut m = ok;
     m.set_process_name("");
     assert_rejected(&m, "process_name", None, inconsistent);
@@ -346,10 +436,33 @@ fn mission_state_rejects_bad_fields() {
         reserved: 0,
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&MissionState { task_index: 3, ..ok }, "task_index", None, out_of_range);
-    assert_rejected(&MissionState { task_kind: 9, ..ok }, "task_kind", None, unknown_code);
-    assert_rejected(&MissionState { phase: 3, ..ok }, "phase", None, unknown_code);
-    assert_rejected(&MissionState { has_next: 2, ..ok }, "has_next", None, unknown_code);
+    assert_rejected(
+        &MissionState {
+            task_index: 3,
+            ..ok
+        },
+        "task_index",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &MissionState { task_kind: 9, ..ok },
+        "task_kind",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &MissionState { phase: 3, ..ok },
+        "phase",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &MissionState { has_next: 2, ..ok },
+        "has_next",
+        None,
+        unknown_code,
+    );
     let mut m = ok;
     m.next_target[0] = f64::NAN;
     assert_rejected(&m, "next_target", Some(0), not_finite);
@@ -372,10 +485,42 @@ fn safe_stop_reason_must_match_the_active_flag() {
     };
     assert_eq!(check(&raised), Ok(()));
     assert_eq!(check(&cleared), Ok(()));
-    assert_rejected(&SafeStop { reason: 0, ..raised }, "reason", None, inconsistent);
-    assert_rejected(&SafeStop { reason: 2, ..cleared }, "reason", None, inconsistent);
-    assert_rejected(&SafeStop { reason: 17, ..raised }, "reason", None, unknown_code);
-    assert_rejected(&SafeStop { active: 7, ..raised }, "active", None, unknown_code);
+    assert_rejected(
+        &SafeStop {
+            reason: 0,
+            ..raised
+        },
+        "reason",
+        None,
+        inconsistent,
+    );
+    assert_rejected(
+        &SafeStop {
+            reason: 2,
+            ..cleared
+        },
+        "reason",
+        None,
+        inconsistent,
+    );
+    assert_rejected(
+        &SafeStop {
+            reason: 17,
+            ..raised
+        },
+        "reason",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &SafeStop {
+            active: 7,
+            ..raised
+        },
+        "active",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]
@@ -389,9 +534,30 @@ fn qp_status_rejects_bad_fields() {
         slack_norm: 0.01,
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&QpStatus { outcome: 3, ..ok }, "outcome", None, unknown_code);
-    assert_rejected(&QpStatus { objective: f64::NAN, ..ok }, "objective", None, not_finite);
-    assert_rejected(&QpStatus { slack_norm: -1e-9, ..ok }, "slack_norm", None, out_of_range);
+    assert_rejected(
+        &QpStatus { outcome: 3, ..ok },
+        "outcome",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &QpStatus {
+            objective: f64::NAN,
+            ..ok
+        },
+        "objective",
+        None,
+        not_finite,
+    );
+    assert_rejected(
+        &QpStatus {
+            slack_norm: -1e-9,
+            ..ok
+        },
+        "slack_norm",
+        None,
+        out_of_range,
+    );
 }
 
 #[test]
@@ -402,7 +568,12 @@ fn active_controller_rejects_an_unknown_variant() {
         variant: ControllerVariant::Grasp.into(),
     };
     assert_eq!(check(&ok), Ok(()));
-    assert_rejected(&ActiveController { variant: 4, ..ok }, "variant", None, unknown_code);
+    assert_rejected(
+        &ActiveController { variant: 4, ..ok },
+        "variant",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]
@@ -410,7 +581,10 @@ fn rejection_message_names_the_message_field_and_value() {
     let mut m = joint_state();
     m.velocity[2] = 12.5;
     let text = check(&m).unwrap_err().to_string();
-    assert_eq!(text, "JointState.velocity[2] rejected: 12.5 is outside [-10, 10]");
+    assert_eq!(
+        text,
+        "JointState.velocity[2] rejected: 12.5 is outside [-10, 10]"
+    );
 }
 
 #[test]

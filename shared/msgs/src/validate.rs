@@ -98,7 +98,12 @@ pub(crate) struct Check {
 
 impl Check {
     /// Builds a rejection of `field` for `reason`.
-    pub fn reject(&self, field: &'static str, index: Option<usize>, reason: RejectReason) -> Rejection {
+    pub fn reject(
+        &self,
+        field: &'static str,
+        index: Option<usize>,
+        reason: RejectReason,
+    ) -> Rejection {
         Rejection {
             message: self.message,
             field,
@@ -108,7 +113,13 @@ impl Check {
     }
 
     /// Accepts a finite value within `[min, max]`.
-    pub fn in_range(&self, field: &'static str, value: f64, min: f64, max: f64) -> Result<(), Rejection> {
+    pub fn in_range(
+        &self,
+        field: &'static str,
+        value: f64,
+        min: f64,
+        max: f64,
+    ) -> Result<(), Rejection> {
         self.in_range_at(field, None, value, min, max)
     }
 
@@ -131,7 +142,12 @@ impl Check {
     }
 
     /// Accepts an array whose every element is finite and within `[-max_abs, max_abs]`.
-    pub fn all_within(&self, field: &'static str, values: &[f64], max_abs: f64) -> Result<(), Rejection> {
+    pub fn all_within(
+        &self,
+        field: &'static str,
+        values: &[f64],
+        max_abs: f64,
+    ) -> Result<(), Rejection> {
         values
             .iter()
             .enumerate()
