@@ -1,5 +1,6 @@
 //! `motm`: the user-facing command-line interface of the motm stack.
 
+mod bench_ipc;
 mod config_dir;
 mod kin;
 
@@ -26,6 +27,19 @@ struct Cli {
 enum Command {
     /// Print the tool pose, world Jacobian and manipulability of a robot at a configuration.
     Kin(kin::KinArgs),
+    /// Micro and system benchmarks (median, p99, max).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// Benchmarks of `motm bench`.
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Per-hop latency between two processes: iceoryx2 and a Unix-domain socket, 64 B and a camera image.
+    Ipc(bench_ipc::IpcArgs),
+    /// Echo peer of `motm bench ipc` (started by it).
+    #[command(hide = true)]
+    IpcEcho(bench_ipc::EchoArgs),
 }
 
 fn main() -> ExitCode {
@@ -40,6 +54,8 @@ fn main() -> ExitCode {
     let config_dir = config_dir::resolve(cli.config_dir);
     let result = match cli.command {
         Command::Kin(args) => kin::run(&config_dir, &args),
+        Command::Bench(BenchCommand::Ipc(args)) => bench_ipc::run(&args),
+        Command::Bench(BenchCommand::IpcEcho(args)) => bench_ipc::run_echo(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
