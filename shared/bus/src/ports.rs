@@ -115,6 +115,19 @@ fn open_event(
         })
 }
 
+/// Creates a port; if that fails (typically `ExceedsMaxSupportedPublishers` or
+/// `...Subscribers` because a dead process still holds a slot), removes the dead nodes'
+/// resources from the service and tries once more.
+fn with_dead_node_cleanup<T, E>(
+    service: &impl PortFactory,
+    mut create: impl FnMut() -> Result<T, E>,
+) -> Result<T, E> {
+    create().or_else(|_| {
+        service.try_cleanup_dead_nodes();
+        create()
+    })
+}
+
 /// Builds a [`BusError::Port`] for `service`.
 fn port_error(service: &str, e: impl std::fmt::Display) -> BusError {
     BusError::Port {
@@ -151,9 +164,7 @@ impl<M: Message> Publisher<M> {
     /// Creates a publisher on service `name` of `bus`.
     pub fn new(bus: &Bus, name: &str, qos: &Qos) -> Result<Self, BusError> {
         let service = open_service::<M>(bus, name, qos)?;
-        let publisher = service
-            .publisher_builder()
-            .create()
+        let publisher = with_dead_node_cleanup(&service, || service.publisher_builder().create())
             .map_err(|e| port_error(name, e))?;
         let notifier = if qos.wake_readers {
             let event = open_event(bus, name)?;
@@ -352,9 +363,7 @@ impl<M: Message> Subscriber<M> {
     /// listens to the service's ready event (see [`Subscriber::listener`]).
     pub fn new(bus: &Bus, name: &str, qos: &Qos) -> Result<Self, BusError> {
         let service = open_service::<M>(bus, name, qos)?;
-        let subscriber = service
-            .subscriber_builder()
-            .create()
+        let subscriber = with_dead_node_cleanup(&service, || service.subscriber_builder().create())
             .map_err(|e| port_error(name, e))?;
         let listener = if qos.wake_readers {
             let event = open_event(bus, name)?;

@@ -14,9 +14,10 @@ use crate::{Bus, BusError, CycleStats, HeartbeatPublisher, Trigger, monotonic_no
 pub struct LoopConfig {
     /// Cycle period of [`ServiceLoop::run_periodic`] (default 5 ms: the 200 Hz control rate).
     pub period: Duration,
-    /// Longest acceptable cycle (wake to end of step); `None` means one period. A periodic
-    /// cycle also misses its deadline when it starts more than this late, i.e. when the gap
-    /// since the previous wake exceeds period + deadline (a lost tick).
+    /// Longest acceptable time from a cycle's release to the end of its step; `None` means
+    /// one period. A periodic cycle is released at its timer tick, so a late wake-up counts
+    /// against it; an event-driven cycle is released when it wakes. A tick that passes with
+    /// no cycle at all, although the previous cycle had finished in time, is a miss too.
     pub deadline: Option<Duration>,
     /// Interval between heartbeats (default 100 ms).
     pub heartbeat_period: Duration,
@@ -84,6 +85,43 @@ pub enum LoopExit {
     Interrupt,
 }
 
+/// The tick grid of a periodic loop: ticks fall at `origin_ns + k * period_ns`.
+#[derive(Debug, Clone, Copy)]
+struct Schedule {
+    origin_ns: u64,
+    period_ns: u64,
+}
+
+/// The last cycle of a periodic loop, for spotting lost ticks.
+#[derive(Debug, Clone, Copy)]
+struct LastTick {
+    index: u64,
+    end_ns: u64,
+}
+
+/// Whether a cycle missed its deadline: it ended more than `deadline_ns` after its release
+/// (its tick, or its wake-up without a schedule), or a whole tick passed without a cycle
+/// although the previous cycle had ended before that tick. Returns the miss flag and the
+/// cycle's tick (for the next call).
+fn deadline_missed(
+    wake_ns: u64,
+    end_ns: u64,
+    deadline_ns: u64,
+    schedule: Option<Schedule>,
+    last: Option<LastTick>,
+) -> (bool, Option<LastTick>) {
+    let Some(s) = schedule else {
+        return (end_ns - wake_ns > deadline_ns, None);
+    };
+    let index = wake_ns.saturating_sub(s.origin_ns) / s.period_ns;
+    let release = s.origin_ns + index * s.period_ns;
+    let overran = end_ns - release.min(wake_ns) > deadline_ns;
+    let lost_tick = last.is_some_and(|last| {
+        index > last.index + 1 && last.end_ns <= s.origin_ns + (last.index + 1) * s.period_ns
+    });
+    (overran || lost_tick, Some(LastTick { index, end_ns }))
+}
+
 /// The standard service loop of a process: it owns the heartbeat and the cycle statistics.
 pub struct ServiceLoop<'bus> {
     bus: &'bus Bus,
@@ -91,6 +129,7 @@ pub struct ServiceLoop<'bus> {
     stats: CycleStats,
     heartbeat: HeartbeatPublisher,
     last_wake_ns: Option<u64>,
+    last_tick: Option<LastTick>,
     last_heartbeat_ns: u64,
     last_refresh_ns: u64,
 }
@@ -108,6 +147,7 @@ impl<'bus> ServiceLoop<'bus> {
             stats,
             heartbeat,
             last_wake_ns: None,
+            last_tick: None,
             last_heartbeat_ns: now,
             last_refresh_ns: now,
         })
@@ -135,9 +175,13 @@ impl<'bus> ServiceLoop<'bus> {
             .attach_interval(self.config.period)
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         let period_ns = self.config.period.as_nanos() as u64;
+        let schedule = Schedule {
+            origin_ns: monotonic_now_ns(),
+            period_ns,
+        };
         let mut stopped = false;
         let result = waitset.wait_and_process(|id| {
-            if id.has_event_from(&tick) && self.cycle(period_ns, &mut step) == Flow::Stop {
+            if id.has_event_from(&tick) && self.cycle(Some(schedule), &mut step) == Flow::Stop {
                 stopped = true;
                 return CallbackProgression::Stop;
             }
@@ -169,7 +213,7 @@ impl<'bus> ServiceLoop<'bus> {
         let result = waitset.wait_and_process(|id| {
             if id.has_event_from(&on_data) {
                 trigger.clear();
-                if self.cycle(0, &mut step) == Flow::Stop {
+                if self.cycle(None, &mut step) == Flow::Stop {
                     stopped = true;
                     return CallbackProgression::Stop;
                 }
@@ -189,8 +233,12 @@ impl<'bus> ServiceLoop<'bus> {
             .map_err(|e| BusError::Loop(format!("{e:?}")))
     }
 
-    /// Runs and records one cycle; `period_ns` is 0 for event-driven loops.
-    fn cycle(&mut self, period_ns: u64, step: &mut impl FnMut(&CycleContext) -> Flow) -> Flow {
+    /// Runs and records one cycle; `schedule` is `None` for event-driven loops.
+    fn cycle(
+        &mut self,
+        schedule: Option<Schedule>,
+        step: &mut impl FnMut(&CycleContext) -> Flow,
+    ) -> Flow {
         let wake = monotonic_now_ns();
         let since_last_ns = self.last_wake_ns.map_or(0, |last| wake - last);
         self.last_wake_ns = Some(wake);
@@ -200,12 +248,16 @@ impl<'bus> ServiceLoop<'bus> {
             since_last_ns,
         });
         let end = monotonic_now_ns();
-        let cycle_ns = end - wake;
-        let deadline_ns = self.config.deadline_ns();
-        let late_start = period_ns > 0 && since_last_ns > period_ns + deadline_ns;
-        self.stats
-            .record(cycle_ns, cycle_ns > deadline_ns || late_start, end);
-        self.housekeeping(end, period_ns);
+        let (missed, tick) = deadline_missed(
+            wake,
+            end,
+            self.config.deadline_ns(),
+            schedule,
+            self.last_tick,
+        );
+        self.last_tick = tick;
+        self.stats.record(end - wake, missed, end);
+        self.housekeeping(end, schedule.map_or(0, |s| s.period_ns));
         flow
     }
 
@@ -249,5 +301,119 @@ impl<'bus> ServiceLoop<'bus> {
             self.bus.rejected_messages(),
         )?;
         Ok(exit)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{IpcConfig, Latest, Qos, cleanup::remove_domain, shared_memory_entries};
+    use motm_msgs::{Heartbeat, services};
+
+    const MS: u64 = 1_000_000;
+
+    /// Ticks every 5 ms from t = 100 ms.
+    const SCHEDULE: Schedule = Schedule {
+        origin_ns: 100 * MS,
+        period_ns: 5 * MS,
+    };
+
+    #[test]
+    fn a_cycle_misses_when_it_ends_after_release_plus_deadline() {
+        // Woken 1 ms after tick 2 (t = 110 ms), done 3 ms later: 4 ms after release.
+        let (missed, tick) = deadline_missed(111 * MS, 114 * MS, 5 * MS, Some(SCHEDULE), None);
+        assert!(!missed);
+        assert_eq!(tick.unwrap().index, 2);
+        // Woken 4 ms late and running 2 ms: 6 ms after release, past a 5 ms deadline, although
+        // the step alone took less than the deadline.
+        let (missed, _) = deadline_missed(114 * MS, 116 * MS, 5 * MS, Some(SCHEDULE), None);
+        assert!(missed);
+    }
+
+    #[test]
+    fn a_lost_tick_is_a_miss_unless_the_previous_cycle_overran() {
+        let finished_early = LastTick {
+            index: 2,
+            end_ns: 111 * MS,
+        };
+        // Tick 3 (115 ms) passed without a cycle; the next one runs at tick 4.
+        let (missed, _) = deadline_missed(
+            120 * MS,
+            121 * MS,
+            5 * MS,
+            Some(SCHEDULE),
+            Some(finished_early),
+        );
+        assert!(missed);
+        // The previous cycle ran past tick 3 (it is already counted as a miss): the cycle
+        // at tick 4 is on time.
+        let overran = LastTick {
+            index: 2,
+            end_ns: 117 * MS,
+        };
+        let (missed, _) =
+            deadline_missed(120 * MS, 121 * MS, 5 * MS, Some(SCHEDULE), Some(overran));
+        assert!(!missed);
+        // Consecutive ticks: no lost tick.
+        let (missed, _) = deadline_missed(
+            115 * MS,
+            116 * MS,
+            5 * MS,
+            Some(SCHEDULE),
+            Some(finished_early),
+        );
+        assert!(!missed);
+    }
+
+    #[test]
+    fn an_event_driven_cycle_is_measured_from_its_wake_up() {
+        assert!(!deadline_missed(7 * MS, 11 * MS, 5 * MS, None, None).0);
+        assert!(deadline_missed(7 * MS, 13 * MS, 5 * MS, None, None).0);
+    }
+
+    #[test]
+    fn periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+        let ipc = IpcConfig {
+            prefix: format!("motmt{}_loop_", std::process::id()),
+        };
+        {
+            let bus = Bus::open_with("looper", &ipc).unwrap();
+            let mut heartbeat =
+                Latest::<Heartbeat>::new(&bus, &services::heartbeat("looper"), &Qos::default())
+                    .unwrap();
+            let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(200.0)).unwrap();
+            let mut seen = Vec::new();
+            let exit = service
+                .run_periodic(|cycle| {
+                    seen.push(cycle.cycle);
+                    // Cycles 2 and 5 run four periods: each is a deadline miss.
+                    if cycle.cycle == 2 || cycle.cycle == 5 {
+                        std::thread::sleep(Duration::from_millis(20));
+                    }
+                    if cycle.cycle == 9 {
+                        Flow::Stop
+                    } else {
+                        Flow::Continue
+                    }
+                })
+                .unwrap();
+            assert_eq!(exit, LoopExit::Stopped);
+            assert_eq!(seen, (0..10).collect::<Vec<_>>());
+            assert_eq!(service.stats().cycles(), 10);
+            assert!(service.stats().deadline_misses() >= 2);
+            assert!(service.stats().max_cycle_ns() >= 20 * MS);
+            heartbeat.update().unwrap();
+            let beat = heartbeat.get().unwrap();
+            assert_eq!(beat.state(), Some(motm_msgs::ProcessState::Stopping));
+            assert_eq!(beat.cycles, 10);
+            assert_eq!(beat.deadline_misses, service.stats().deadline_misses());
+            assert_eq!(beat.period_ns, 5 * MS);
+        }
+        // SAFETY: the bus is dropped and no other process uses this prefix.
+        unsafe { remove_domain(&ipc) }.unwrap();
+        assert_eq!(
+            shared_memory_entries(&ipc).unwrap(),
+            Vec::<std::path::PathBuf>::new()
+        );
     }
 }
