@@ -533,3 +533,76 @@ impl<M: Message> Latest<M> {
         &self.subscriber
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{IpcConfig, cleanup::remove_domain, shared_memory_entries};
+    use motm_msgs::{BaseOdometry, JointState};
+
+    #[test]
+    fn another_payload_type_on_a_service_name_is_a_clear_error() {
+        let ipc = IpcConfig {
+            prefix: format!("motmt{}_types_", std::process::id()),
+        };
+        {
+            let bus = Bus::open_with("types", &ipc).unwrap();
+            let _state =
+                Publisher::<JointState>::new(&bus, services::ARM_JOINT_STATE, &Qos::default())
+                    .unwrap();
+            let err =
+                Subscriber::<BaseOdometry>::new(&bus, services::ARM_JOINT_STATE, &Qos::default())
+                    .err()
+                    .expect("payload type mismatch must fail");
+            let text = err.to_string();
+            assert!(text.contains(services::ARM_JOINT_STATE), "{text}");
+            assert!(text.contains("IncompatibleTypes"), "{text}");
+        }
+        // SAFETY: the bus is dropped and no other process uses this prefix.
+        unsafe { remove_domain(&ipc) }.unwrap();
+        assert!(shared_memory_entries(&ipc).unwrap().is_empty());
+    }
+
+    #[test]
+    fn subscriber_drops_and_counts_invalid_samples_and_keeps_the_valid_ones() {
+        let ipc = IpcConfig {
+            prefix: format!("motmt{}_reject_", std::process::id()),
+        };
+        {
+            let bus = Bus::open_with("rejects", &ipc).unwrap();
+            let qos = Qos {
+                subscriber_buffer: 8,
+                ..Qos::default()
+            };
+            let mut publisher =
+                Publisher::<BaseOdometry>::new(&bus, services::BASE_ODOMETRY, &qos).unwrap();
+            let mut latest =
+                Latest::<BaseOdometry>::new(&bus, services::BASE_ODOMETRY, &qos).unwrap();
+            let mut odometry = BaseOdometry::zeroed();
+            odometry.x = 1.0;
+            publisher.publish(odometry).unwrap();
+            publisher
+                .publish(BaseOdometry {
+                    yaw: f64::NAN,
+                    ..odometry
+                })
+                .unwrap();
+            publisher
+                .publish_stamped(Stamp::At(u64::MAX), odometry)
+                .unwrap();
+            assert!(latest.update().unwrap());
+            assert_eq!(latest.get().unwrap().x, 1.0);
+            assert_eq!(latest.get().unwrap().header.seq, 0);
+            assert_eq!(latest.subscriber().rejected(), 2);
+            assert_eq!(bus.rejected_messages(), 2);
+            let last = latest.subscriber().last_rejection().unwrap();
+            assert_eq!(last.field, "header.stamp_ns");
+            // Nothing new: the value stays.
+            assert!(!latest.update().unwrap());
+            assert_eq!(latest.get().unwrap().x, 1.0);
+        }
+        // SAFETY: the bus is dropped and no other process uses this prefix.
+        unsafe { remove_domain(&ipc) }.unwrap();
+        assert!(shared_memory_entries(&ipc).unwrap().is_empty());
+    }
+}
