@@ -5,6 +5,31 @@
 //! refresh) and dead-node cleanup for supervisors.
 //!
 //! All ports use `ipc::Service`: they are not `Send` and stay on the thread that made them.
+//!
+//! A control process in a few lines:
+//!
+//! ```no_run
+//! use motm_bus::{Bus, Flow, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
+//! use motm_msgs::{ArmVelocityCommand, JointState, Message, services};
+//!
+//! # fn main() -> Result<(), motm_bus::BusError> {
+//! let bus = Bus::open("qp-resolver")?; // prefix from $MOTM_IPC_PREFIX
+//! let mut joints = Latest::<JointState>::new(&bus, services::ARM_JOINT_STATE, &Qos::default())?;
+//! let mut command =
+//!     Publisher::<ArmVelocityCommand>::new(&bus, services::ARM_VELOCITY_COMMAND, &Qos::default())?;
+//! let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(200.0))?;
+//! service.run_periodic(|_cycle| {
+//!     joints.update().ok();
+//!     if let Some(state) = joints.get() {
+//!         let mut out = ArmVelocityCommand::zeroed();
+//!         out.joint_count = state.joint_count;
+//!         command.publish(out).ok(); // a pure step function computes `out`
+//!     }
+//!     Flow::Continue
+//! })?; // returns on SIGTERM/SIGINT; dropping the ports and the bus cleans up
+//! # Ok(())
+//! # }
+//! ```
 
 mod cleanup;
 mod clock;
