@@ -24,6 +24,12 @@ pub struct BenchArgs {
 enum BenchCommand {
     /// Time the redundancy-resolution QP (median, p99 and max µs) and the whole control step.
     Qp(QpArgs),
+    /// Per-hop latency between two processes: iceoryx2 and a Unix-domain socket, 64 B and a
+    /// camera image.
+    Ipc(crate::bench_ipc::IpcArgs),
+    /// Echo peer of `motm bench ipc` (started by it).
+    #[command(hide = true)]
+    IpcEcho(crate::bench_ipc::EchoArgs),
 }
 
 /// Arguments of `motm bench qp`.
@@ -48,6 +54,8 @@ struct QpArgs {
 pub fn run(config_dir: &Path, args: &BenchArgs) -> Result<(), String> {
     match &args.command {
         BenchCommand::Qp(qp) => run_qp(config_dir, qp),
+        BenchCommand::Ipc(ipc) => crate::bench_ipc::run(ipc),
+        BenchCommand::IpcEcho(echo) => crate::bench_ipc::run_echo(echo),
     }
 }
 

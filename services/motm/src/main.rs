@@ -1,6 +1,7 @@
 //! `motm`: the user-facing command-line interface of the motm stack.
 
 mod bench;
+mod bench_ipc;
 mod config_dir;
 mod experiment;
 mod kin;

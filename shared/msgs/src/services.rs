@@ -1,0 +1,102 @@
+//! iceoryx2 service names. Every name starts with `motm/v<SCHEMA_VERSION>/`, so a process built
+//! with other message types cannot attach to a service of this version.
+
+/// Prefix of every service name of this schema version.
+pub const PREFIX: &str = "motm/v1";
+
+/// Arm joint state from the arm driver ([`crate::JointState`]).
+pub const ARM_JOINT_STATE: &str = "motm/v1/arm/joint_state";
+/// Gripper state from the arm driver ([`crate::GripperState`]).
+pub const ARM_GRIPPER_STATE: &str = "motm/v1/arm/gripper_state";
+/// Joint velocity command from the QP resolver to the arm driver ([`crate::ArmVelocityCommand`]).
+pub const ARM_VELOCITY_COMMAND: &str = "motm/v1/arm/velocity_command";
+/// Gripper command from the final-phase controller ([`crate::GripperCommand`]).
+pub const ARM_GRIPPER_COMMAND: &str = "motm/v1/arm/gripper_command";
+/// Base odometry from the base driver ([`crate::BaseOdometry`]).
+pub const BASE_ODOMETRY: &str = "motm/v1/base/odometry";
+/// Base velocity target from the base planner ([`crate::BaseVelocityCommand`]).
+pub const BASE_VELOCITY_TARGET: &str = "motm/v1/base/velocity_target";
+/// Base velocity command from the QP resolver to the base driver ([`crate::BaseVelocityCommand`]).
+pub const BASE_VELOCITY_COMMAND: &str = "motm/v1/base/velocity_command";
+/// Closest approach and time-to-range from the base planner ([`crate::BasePlan`]).
+pub const BASE_PLAN: &str = "motm/v1/base/plan";
+/// Palm camera image ([`crate::CameraImage`]).
+pub const CAMERA_IMAGE: &str = "motm/v1/camera/image";
+/// Target object estimate from perception ([`crate::TargetEstimate`]).
+pub const PERCEPTION_TARGET: &str = "motm/v1/perception/target";
+/// End-effector twist target from the reacher ([`crate::TwistCommand`]).
+pub const CONTROL_REACH_TWIST: &str = "motm/v1/control/reach_twist";
+/// End-effector twist target from the final-phase controller ([`crate::TwistCommand`]).
+pub const CONTROL_FINAL_TWIST: &str = "motm/v1/control/final_twist";
+/// Status of the QP resolver's last solve ([`crate::QpStatus`]).
+pub const CONTROL_QP_STATUS: &str = "motm/v1/control/qp_status";
+/// Active controller id ([`crate::ActiveController`]).
+pub const CONTROL_ACTIVE_CONTROLLER: &str = "motm/v1/control/active_controller";
+/// Mission and task state from the supervisor ([`crate::MissionState`]).
+pub const MISSION_STATE: &str = "motm/v1/mission/state";
+/// Safe-stop from the watchdog ([`crate::SafeStop`]).
+pub const SAFETY_SAFE_STOP: &str = "motm/v1/safety/safe_stop";
+/// Arm command from the arm driver to the simulated (or real) hardware ([`crate::ArmVelocityCommand`]).
+pub const HW_ARM_COMMAND: &str = "motm/v1/hw/arm_command";
+/// Arm state from the simulated (or real) hardware ([`crate::JointState`]).
+pub const HW_ARM_STATE: &str = "motm/v1/hw/arm_state";
+/// Base command from the base driver to the simulated (or real) hardware ([`crate::BaseVelocityCommand`]).
+pub const HW_BASE_COMMAND: &str = "motm/v1/hw/base_command";
+/// Base state from the simulated (or real) hardware ([`crate::BaseOdometry`]).
+pub const HW_BASE_STATE: &str = "motm/v1/hw/base_state";
+
+/// Prefix of the per-process heartbeat services ([`crate::Heartbeat`]).
+pub const HEARTBEAT_PREFIX: &str = "motm/v1/heartbeat";
+
+/// Heartbeat service of one process, e.g. `motm/v1/heartbeat/qp-resolver`.
+pub fn heartbeat(process: &str) -> String {
+    format!("{HEARTBEAT_PREFIX}/{process}")
+}
+
+/// Event service that wakes the readers of `service` when a sample was published on it.
+pub fn ready_event(service: &str) -> String {
+    format!("{service}/ready")
+}
+
+/// Every fixed service name (heartbeats excluded), for taps and tests.
+pub const ALL: [&str; 20] = [
+    ARM_JOINT_STATE,
+    ARM_GRIPPER_STATE,
+    ARM_VELOCITY_COMMAND,
+    ARM_GRIPPER_COMMAND,
+    BASE_ODOMETRY,
+    BASE_VELOCITY_TARGET,
+    BASE_VELOCITY_COMMAND,
+    BASE_PLAN,
+    CAMERA_IMAGE,
+    PERCEPTION_TARGET,
+    CONTROL_REACH_TWIST,
+    CONTROL_FINAL_TWIST,
+    CONTROL_QP_STATUS,
+    CONTROL_ACTIVE_CONTROLLER,
+    MISSION_STATE,
+    SAFETY_SAFE_STOP,
+    HW_ARM_COMMAND,
+    HW_ARM_STATE,
+    HW_BASE_COMMAND,
+    HW_BASE_STATE,
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_service_name_carries_the_schema_version_and_is_unique() {
+        let prefix = format!("motm/v{}/", crate::SCHEMA_VERSION);
+        assert_eq!(format!("{PREFIX}/"), prefix);
+        for name in ALL {
+            assert!(name.starts_with(&prefix), "{name}");
+        }
+        assert!(heartbeat("watchdog").starts_with(&prefix));
+        let mut names = ALL.to_vec();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), ALL.len());
+    }
+}

@@ -1,0 +1,595 @@
+//! Unit tests: every message accepts a valid instance and rejects each kind of bad field,
+//! naming that field.
+
+use super::*;
+
+/// Receiver clock used by the tests, ns.
+const NOW: u64 = 1_000_000_000;
+
+/// Validates `m` as the first sample from its publisher at time [`NOW`].
+fn check<M: Message>(m: &M) -> Result<(), Rejection> {
+    m.validate(NOW, None)
+}
+
+/// Asserts that `m` is rejected at `field` (and `index`) for a reason matching `reason`.
+fn assert_rejected<M: Message>(
+    m: &M,
+    field: &str,
+    index: Option<usize>,
+    reason: impl Fn(&RejectReason) -> bool,
+) {
+    let r = check(m).expect_err("message should be rejected");
+    assert_eq!(r.message, M::NAME);
+    assert_eq!((r.field, r.index), (field, index), "{r}");
+    assert!(reason(&r.reason), "unexpected reason: {r}");
+}
+
+fn not_finite(r: &RejectReason) -> bool {
+    matches!(r, RejectReason::NotFinite)
+}
+
+fn out_of_range(r: &RejectReason) -> bool {
+    matches!(r, RejectReason::OutOfRange { .. })
+}
+
+fn unknown_code(r: &RejectReason) -> bool {
+    matches!(r, RejectReason::UnknownCode(_))
+}
+
+fn inconsistent(r: &RejectReason) -> bool {
+    matches!(r, RejectReason::Inconsistent(_))
+}
+
+fn header() -> Header {
+    Header::new(NOW - 1_000, 5)
+}
+
+fn joint_state() -> JointState {
+    JointState {
+        header: header(),
+        joint_count: 7,
+        reserved: 0,
+        position: [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785],
+        velocity: [0.1; 7],
+    }
+}
+
+#[test]
+fn header_rejects_wrong_schema_version() {
+    let mut m = joint_state();
+    m.header.schema_version = SCHEMA_VERSION + 1;
+    assert_rejected(&m, "header.schema_version", None, |r| {
+        *r == RejectReason::WrongSchemaVersion {
+            found: SCHEMA_VERSION + 1,
+            expected: SCHEMA_VERSION,
+        }
+    });
+}
+
+#[test]
+fn header_rejects_a_timestamp_in_the_future_but_accepts_now() {
+    let mut m = joint_state();
+    m.header.stamp_ns = NOW + 1;
+    assert_rejected(
+        &m,
+        "header.stamp_ns",
+        None,
+        |r| matches!(r, RejectReason::FutureTimestamp { stamp_ns, now_ns } if *stamp_ns == NOW + 1 && *now_ns == NOW),
+    );
+    m.header.stamp_ns = NOW;
+    assert_eq!(check(&m), Ok(()));
+}
+
+#[test]
+fn header_rejects_a_sequence_number_that_does_not_move_forward() {
+    let m = joint_state();
+    assert_eq!(m.validate(NOW, Some(4)), Ok(()));
+    for last in [5, 6, u64::MAX] {
+        let r = m.validate(NOW, Some(last)).unwrap_err();
+        assert_eq!(r.field, "header.seq");
+        assert_eq!(
+            r.reason,
+            RejectReason::SequenceNotIncreasing {
+                seq: 5,
+                last_seq: last
+            }
+        );
+    }
+}
+
+#[test]
+fn joint_state_accepts_a_valid_sample_and_a_six_joint_arm() {
+    assert_eq!(check(&joint_state()), Ok(()));
+    let mut m = joint_state();
+    m.joint_count = 6;
+    m.position[6] = 0.0;
+    m.velocity[6] = 0.0;
+    assert_eq!(check(&m), Ok(()));
+}
+
+#[test]
+fn joint_state_rejects_bad_fields() {
+    let mut m = joint_state();
+    m.position[3] = f64::NAN;
+    assert_rejected(&m, "position", Some(3), not_finite);
+
+    let mut m = joint_state();
+    m.velocity[6] = f64::INFINITY;
+    assert_rejected(&m, "velocity", Some(6), not_finite);
+
+    let mut m = joint_state();
+    m.velocity[1] = -(envelope::JOINT_VELOCITY + 0.1);
+    assert_rejected(&m, "velocity", Some(1), out_of_range);
+
+    for count in [0, 8] {
+        let mut m = joint_state();
+        m.joint_count = count;
+        assert_rejected(&m, "joint_count", None, out_of_range);
+    }
+
+    let mut m = joint_state();
+    m.joint_count = 6;
+    m.velocity[6] = 0.0;
+    assert_rejected(&m, "position", Some(6), inconsistent);
+
+    let mut m = joint_state();
+    m.reserved = 1;
+    assert_rejected(&m, "reserved", None, inconsistent);
+}
+
+#[test]
+fn gripper_state_rejects_bad_fields() {
+    let ok = GripperState {
+        header: header(),
+        width: 0.04,
+        grasping: 1,
+        reserved: 0,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &GripperState { width: -0.01, ..ok },
+        "width",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &GripperState {
+            width: f64::NAN,
+            ..ok
+        },
+        "width",
+        None,
+        not_finite,
+    );
+    assert_rejected(
+        &GripperState { grasping: 2, ..ok },
+        "grasping",
+        None,
+        unknown_code,
+    );
+}
+
+#[test]
+fn base_odometry_rejects_bad_fields() {
+    let ok = BaseOdometry {
+        header: header(),
+        x: 1.0,
+        y: -2.0,
+        yaw: 3.0,
+        v: 0.3,
+        omega: -0.2,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(&BaseOdometry { yaw: 3.2, ..ok }, "yaw", None, out_of_range);
+    assert_rejected(&BaseOdometry { x: 1e4, ..ok }, "x", None, out_of_range);
+    assert_rejected(
+        &BaseOdometry {
+            y: f64::NEG_INFINITY,
+            ..ok
+        },
+        "y",
+        None,
+        not_finite,
+    );
+    assert_rejected(&BaseOdometry { v: f64::NAN, ..ok }, "v", None, not_finite);
+    assert_rejected(
+        &BaseOdometry { omega: 11.0, ..ok },
+        "omega",
+        None,
+        out_of_range,
+    );
+}
+
+#[test]
+fn base_velocity_command_rejects_bad_fields() {
+    let ok = BaseVelocityCommand {
+        header: header(),
+        v: 0.3,
+        omega: 0.1,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &BaseVelocityCommand { v: 4.0, ..ok },
+        "v",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &BaseVelocityCommand {
+            omega: f64::INFINITY,
+            ..ok
+        },
+        "omega",
+        None,
+        not_finite,
+    );
+}
+
+#[test]
+fn arm_velocity_command_rejects_bad_fields() {
+    let ok = ArmVelocityCommand {
+        header: header(),
+        joint_count: 6,
+        reserved: 0,
+        velocity: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0],
+    };
+    assert_eq!(check(&ok), Ok(()));
+    let mut m = ok;
+    m.velocity[6] = 0.1;
+    assert_rejected(&m, "velocity", Some(6), inconsistent);
+    let mut m = ok;
+    m.velocity[2] = f64::NAN;
+    assert_rejected(&m, "velocity", Some(2), not_finite);
+    let mut m = ok;
+    m.velocity[0] = 20.0;
+    assert_rejected(&m, "velocity", Some(0), out_of_range);
+    assert_rejected(
+        &ArmVelocityCommand {
+            joint_count: 9,
+            ..ok
+        },
+        "joint_count",
+        None,
+        out_of_range,
+    );
+}
+
+#[test]
+fn gripper_command_rejects_an_unknown_action() {
+    let ok = GripperCommand {
+        header: header(),
+        controller_id: 3,
+        action: GripperAction::Close.into(),
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_eq!(ok.action(), Some(GripperAction::Close));
+    for bad in [0, 3, u32::MAX] {
+        assert_rejected(&GripperCommand { action: bad, ..ok }, "action", None, |r| {
+            *r == RejectReason::UnknownCode(bad)
+        });
+    }
+}
+
+#[test]
+fn twist_command_rejects_bad_fields() {
+    let ok = TwistCommand {
+        header: header(),
+        controller_id: 1,
+        phase: TaskPhase::Reach.into(),
+        twist: [0.1, 0.0, -0.1, 0.0, 0.5, 0.0],
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_eq!(ok.phase(), Some(TaskPhase::Reach));
+    let mut m = ok;
+    m.twist[4] = f64::NAN;
+    assert_rejected(&m, "twist", Some(4), not_finite);
+    // 5 m/s is beyond the linear envelope but within the angular one.
+    let mut m = ok;
+    m.twist[0] = 5.0;
+    assert_rejected(&m, "twist", Some(0), out_of_range);
+    let mut m = ok;
+    m.twist[3] = 5.0;
+    assert_eq!(check(&m), Ok(()));
+    assert_rejected(
+        &TwistCommand { phase: 7, ..ok },
+        "phase",
+        None,
+        unknown_code,
+    );
+}
+
+#[test]
+fn target_estimate_rejects_bad_fields() {
+    let ok = TargetEstimate {
+        header: header(),
+        image_stamp_ns: NOW - 20_000_000,
+        position: [2.0, 0.0, 0.45],
+        velocity: [0.03, 0.0, 0.0],
+        visible: 1,
+        reserved: 0,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &TargetEstimate {
+            image_stamp_ns: ok.header.stamp_ns + 1,
+            ..ok
+        },
+        "image_stamp_ns",
+        None,
+        inconsistent,
+    );
+    let mut m = ok;
+    m.position[2] = f64::INFINITY;
+    assert_rejected(&m, "position", Some(2), not_finite);
+    let mut m = ok;
+    m.velocity[1] = -6.0;
+    assert_rejected(&m, "velocity", Some(1), out_of_range);
+    assert_rejected(
+        &TargetEstimate { visible: 5, ..ok },
+        "visible",
+        None,
+        unknown_code,
+    );
+}
+
+#[test]
+fn base_plan_rejects_bad_fields() {
+    let ok = BasePlan {
+        header: header(),
+        closest_approach: [2.0, -0.5, 0.1],
+        time_to_range: 1.5,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &BasePlan {
+            time_to_range: -0.1,
+            ..ok
+        },
+        "time_to_range",
+        None,
+        out_of_range,
+    );
+    let mut m = ok;
+    m.closest_approach[2] = 4.0;
+    assert_rejected(&m, "closest_approach", Some(2), out_of_range);
+    let mut m = ok;
+    m.closest_approach[1] = f64::NAN;
+    assert_rejected(&m, "closest_approach", Some(1), not_finite);
+}
+
+#[test]
+fn camera_image_rejects_a_wrong_size() {
+    let mut m = CameraImage::zeroed();
+    m.header = header();
+    m.width = CAMERA_WIDTH as u32;
+    m.height = CAMERA_HEIGHT as u32;
+    assert_eq!(check(&m), Ok(()));
+    assert_eq!(
+        core::mem::size_of::<CameraImage>(),
+        24 + 8 + CAMERA_IMAGE_BYTES
+    );
+    m.width = 160;
+    assert_rejected(&m, "width", None, out_of_range);
+    m.width = CAMERA_WIDTH as u32;
+    m.height = 0;
+    assert_rejected(&m, "height", None, out_of_range);
+}
+
+fn heartbeat() -> Heartbeat {
+    let mut m = Heartbeat::zeroed();
+    m.header = header();
+    m.pid = 42;
+    m.state = ProcessState::Running.into();
+    m.cycles = 100;
+    m.deadline_misses = 2;
+    m.set_process_name("qp-resolver");
+    m
+}
+
+#[test]
+fn heartbeat_rejects_bad_fields() {
+    let ok = heartbeat();
+    assert_eq!(check(&ok), Ok(()));
+    assert_eq!(ok.process_name(), "qp-resolver");
+    assert_eq!(ok.state(), Some(ProcessState::Running));
+    assert_rejected(&Heartbeat { state: 3, ..ok }, "state", None, unknown_code);
+    assert_rejected(
+        &Heartbeat {
+            deadline_misses: 101,
+            ..ok
+        },
+        "deadline_misses",
+        None,
+        inconsistent,
+    );
+    let mut m = ok;
+    m.set_process_name("");
+    assert_rejected(&m, "process_name", None, inconsistent);
+    let mut m = ok;
+    m.process_name[0] = 0xff;
+    assert_rejected(&m, "process_name", None, inconsistent);
+    let mut m = ok;
+    m.process_name[31] = b'x';
+    assert_rejected(&m, "process_name", None, inconsistent);
+}
+
+#[test]
+fn heartbeat_name_is_truncated_at_a_character_boundary() {
+    let mut m = heartbeat();
+    let long = "é".repeat(20); // 40 bytes
+    m.set_process_name(&long);
+    assert_eq!(m.process_name(), "é".repeat(16));
+    assert_eq!(check(&m), Ok(()));
+}
+
+#[test]
+fn mission_state_rejects_bad_fields() {
+    let ok = MissionState {
+        header: header(),
+        task_index: 1,
+        task_count: 2,
+        task_kind: TaskKindCode::Place.into(),
+        phase: TaskPhase::Final.into(),
+        current_target: [4.0, 0.0, 0.35],
+        next_target: [0.0; 3],
+        has_next: 0,
+        reserved: 0,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &MissionState {
+            task_index: 3,
+            ..ok
+        },
+        "task_index",
+        None,
+        out_of_range,
+    );
+    assert_rejected(
+        &MissionState { task_kind: 9, ..ok },
+        "task_kind",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &MissionState { phase: 3, ..ok },
+        "phase",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &MissionState { has_next: 2, ..ok },
+        "has_next",
+        None,
+        unknown_code,
+    );
+    let mut m = ok;
+    m.next_target[0] = f64::NAN;
+    assert_rejected(&m, "next_target", Some(0), not_finite);
+    let mut m = ok;
+    m.current_target[1] = 2000.0;
+    assert_rejected(&m, "current_target", Some(1), out_of_range);
+}
+
+#[test]
+fn safe_stop_reason_must_match_the_active_flag() {
+    let raised = SafeStop {
+        header: header(),
+        active: 1,
+        reason: SafeStopReason::DeadlineMiss.into(),
+    };
+    let cleared = SafeStop {
+        header: header(),
+        active: 0,
+        reason: SafeStopReason::None.into(),
+    };
+    assert_eq!(check(&raised), Ok(()));
+    assert_eq!(check(&cleared), Ok(()));
+    assert_rejected(
+        &SafeStop {
+            reason: 0,
+            ..raised
+        },
+        "reason",
+        None,
+        inconsistent,
+    );
+    assert_rejected(
+        &SafeStop {
+            reason: 2,
+            ..cleared
+        },
+        "reason",
+        None,
+        inconsistent,
+    );
+    assert_rejected(
+        &SafeStop {
+            reason: 17,
+            ..raised
+        },
+        "reason",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &SafeStop {
+            active: 7,
+            ..raised
+        },
+        "active",
+        None,
+        unknown_code,
+    );
+}
+
+#[test]
+fn qp_status_rejects_bad_fields() {
+    let ok = QpStatus {
+        header: header(),
+        outcome: QpOutcome::Solved.into(),
+        iterations: 12,
+        solve_time_ns: 80_000,
+        objective: -3.5,
+        slack_norm: 0.01,
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &QpStatus { outcome: 3, ..ok },
+        "outcome",
+        None,
+        unknown_code,
+    );
+    assert_rejected(
+        &QpStatus {
+            objective: f64::NAN,
+            ..ok
+        },
+        "objective",
+        None,
+        not_finite,
+    );
+    assert_rejected(
+        &QpStatus {
+            slack_norm: -1e-9,
+            ..ok
+        },
+        "slack_norm",
+        None,
+        out_of_range,
+    );
+}
+
+#[test]
+fn active_controller_rejects_an_unknown_variant() {
+    let ok = ActiveController {
+        header: header(),
+        controller_id: 2,
+        variant: ControllerVariant::Grasp.into(),
+    };
+    assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &ActiveController { variant: 4, ..ok },
+        "variant",
+        None,
+        unknown_code,
+    );
+}
+
+#[test]
+fn rejection_message_names_the_message_field_and_value() {
+    let mut m = joint_state();
+    m.velocity[2] = 12.5;
+    let text = check(&m).unwrap_err().to_string();
+    assert_eq!(
+        text,
+        "JointState.velocity[2] rejected: 12.5 is outside [-10, 10]"
+    );
+}
+
+#[test]
+fn zeroed_messages_carry_the_current_schema_version() {
+    let m = BaseOdometry::zeroed();
+    assert_eq!(m.header, Header::new(0, 0));
+    assert_eq!(m.validate(0, None), Ok(()));
+}
