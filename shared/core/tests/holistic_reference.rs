@@ -91,3 +91,22 @@ fn default_holistic_run_arrives_within_robot_limits() {
     eprintln!("default holistic run arrived in {steps} steps, worst speed ratio {worst_ratio:.3}");
     assert!(worst_ratio <= 1.0 + 1e-9, "speed ratio {worst_ratio}");
 }
+
+#[test]
+fn non_finite_state_gives_a_zero_command_and_counts_an_error() {
+    let robot = frankie();
+    let arm_dof = robot.arm_dof();
+    let mut controller = HolisticController::new(robot, HolisticConfig::default());
+    let mut arm_q = vec![0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785];
+    arm_q[1] = f64::NAN;
+    let out = controller.step(&HolisticInput {
+        base: BasePose::default(),
+        arm_q: &arm_q,
+        target: Isometry3::translation(1.0, 0.0, 0.5),
+    });
+    assert!(!out.status.is_ok());
+    assert_eq!(out.base, BaseVelocity::default());
+    assert_eq!(out.arm_qd, vec![0.0; arm_dof]);
+    assert!(!out.arrived);
+    assert_eq!(controller.error_count(), 1);
+}

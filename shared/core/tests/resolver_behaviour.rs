@@ -294,3 +294,48 @@ fn base_follows_the_requested_velocity_when_the_arm_can_absorb_the_twist() {
         );
     }
 }
+
+#[test]
+fn facing_term_turns_arm_joint_1_toward_the_gripper() {
+    let robot = frankie();
+    let mut resolver = RedundancyResolver::for_robot(&robot, ResolverConfig::default());
+    let base = BasePose::default();
+    for (i, &(q1, q3)) in [(0.0, 0.6), (0.0, -0.6), (0.4, -0.8)].iter().enumerate() {
+        // Joint 3 swings the gripper sideways, away from where joint 1 points.
+        let arm_q = vec![q1, -0.3, q3, -2.0, 0.0, 2.0, std::f64::consts::FRAC_PI_4];
+        let scenario = QpScenario::at(
+            &robot,
+            base,
+            arm_q.clone(),
+            DVector::zeros(robot.limits().len()),
+            0.2,
+            false,
+        );
+        let Facing::ArmJoint1 { tool_in_arm_base } = scenario.facing else {
+            panic!("MotM scenarios face arm joint 1");
+        };
+        let offset = tool_in_arm_base.y.atan2(tool_in_arm_base.x) - q1;
+        assert!(
+            offset.abs() > 0.05,
+            "case {i}: the gripper must be off joint 1's heading"
+        );
+        let with = resolver.resolve(&scenario.input());
+        let mut without_input = scenario.input();
+        without_input.facing = Facing::None;
+        let without = resolver.resolve(&without_input);
+        let push = with.arm_qd[0] - without.arm_qd[0];
+        assert!(
+            push * offset > 0.0,
+            "case {i}: joint 1 pushed by {push} for an offset of {offset}"
+        );
+    }
+}
+
+#[test]
+fn config_reads_from_toml_with_defaults_and_rejects_unknown_keys() {
+    let config: ResolverConfig = toml::from_str("facing_gain = 0.8").expect("valid");
+    assert_eq!(config.facing_gain, 0.8);
+    assert_eq!(config.damper_influence_distance, 0.9);
+    let err = toml::from_str::<ResolverConfig>("facing_gian = 0.8").unwrap_err();
+    assert!(err.to_string().contains("facing_gian"), "{err}");
+}
