@@ -160,12 +160,7 @@ impl OnTheMove {
 
     /// The point the arm is sent to for `task` whose target estimate is `target`.
     fn reach_target(&self, task: &MissionTask, target: &TargetEstimate) -> TargetEstimate {
-        let mut aim = *target;
-        if task.kind == TaskKind::Place {
-            aim.position.z +=
-                self.config.final_phase.drop.release_height - self.config.reacher.pregrasp_height;
-        }
-        aim
+        crate::mission_tracker::reach_aim(task, target, &self.config)
     }
 
     /// An all-zero command for a cycle that cannot be computed.

@@ -1,0 +1,307 @@
+//! The supervisor's mission task: the [`Mission`] sequencer fed from the bus (joint state,
+//! odometry, the perception estimate and the final-phase controller's progress) instead of
+//! from inside one controller, as [`crate::on_the_move::OnTheMove`] feeds it in one process.
+//!
+//! Choices:
+//! - **Target of the current task**: perception's estimate for a pick once it has one,
+//!   otherwise the mission's known position (what the in-process runner does).
+//! - **Tool-to-target distance** is measured to the reach aim ([`reach_aim`]), exactly as the
+//!   composed controller measures it, so both switch to the final phase at the same point.
+//! - **Final-phase progress** counts only when it names the current task and the mission is
+//!   in the final phase: a stale "done" of the previous task can never skip the next one.
+//! - **Next target** is [`Mission::next_waypoint`]: the next task's target, or the run-out
+//!   point beyond the last one, so the base planner never needs the task list.
+
+use nalgebra::Vector3;
+
+use crate::kinematics::BasePose;
+use crate::mission::{Mission, MissionTask, Phase, TaskKind};
+use crate::on_the_move::OnTheMoveConfig;
+use crate::robot::Robot;
+use crate::types::{TargetEstimate, TaskProgress};
+
+/// The point the reacher sends the tool to for `task` whose target estimate is `target`: a
+/// place task's container point is raised so that the reacher's pre-grasp point is the drop
+/// controller's release point.
+pub fn reach_aim(
+    task: &MissionTask,
+    target: &TargetEstimate,
+    config: &OnTheMoveConfig,
+) -> TargetEstimate {
+    let mut aim = *target;
+    if task.kind == TaskKind::Place {
+        aim.position.z += config.final_phase.drop.release_height - config.reacher.pregrasp_height;
+    }
+    aim
+}
+
+/// Progress reported by the final-phase controller, for one task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FinalProgress {
+    /// Index of the task the controller works on.
+    pub task_index: usize,
+    /// Its progress.
+    pub progress: TaskProgress,
+}
+
+/// What the mission task reads each cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct MissionTrackerInput<'a> {
+    /// Base pose (odometry).
+    pub base: BasePose,
+    /// Arm joint positions.
+    pub arm_q: &'a [f64],
+    /// Perception's latest valid estimate of the current pick's object, if any.
+    pub estimate: Option<TargetEstimate>,
+    /// The final-phase controller's latest progress report, if any.
+    pub final_progress: Option<FinalProgress>,
+}
+
+/// What the mission task publishes after a cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionTrackerOutput {
+    /// Index of the current task (the task count when complete).
+    pub task_index: usize,
+    /// Number of tasks.
+    pub task_count: usize,
+    /// Kind of the current task (`None` when complete).
+    pub kind: Option<TaskKind>,
+    /// The active phase.
+    pub phase: Phase,
+    /// The current task's known position (zero when complete).
+    pub current_target: Vector3<f64>,
+    /// Where the base heads after the current target (`None` when complete).
+    pub next_target: Option<Vector3<f64>>,
+    /// Tool-to-aim distance this cycle, m (infinite when it could not be computed).
+    pub tool_to_target: f64,
+    /// The task or phase changed this cycle.
+    pub changed: bool,
+}
+
+/// The mission sequencer with the inputs the supervisor has.
+#[derive(Debug, Clone)]
+pub struct MissionTracker {
+    robot: Robot,
+    config: OnTheMoveConfig,
+    mission: Mission,
+}
+
+impl MissionTracker {
+    /// A mission over `tasks` for `robot`, base starting at `start`; `config` is the one the
+    /// control services use (mission thresholds and the reach aim's heights).
+    pub fn new(
+        robot: Robot,
+        config: OnTheMoveConfig,
+        tasks: Vec<MissionTask>,
+        start: Vector3<f64>,
+    ) -> Self {
+        Self {
+            mission: Mission::new(config.mission.clone(), tasks, start),
+            robot,
+            config,
+        }
+    }
+
+    /// The mission.
+    pub fn mission(&self) -> &Mission {
+        &self.mission
+    }
+
+    /// Restores the mission at a task and phase (after a supervisor restart).
+    pub fn resume(&mut self, task_index: usize, phase: Phase) {
+        self.mission.resume(task_index, phase);
+    }
+
+    /// The current state without stepping.
+    pub fn output(&self, tool_to_target: f64, changed: bool) -> MissionTrackerOutput {
+        let task = self.mission.current_task();
+        MissionTrackerOutput {
+            task_index: self.mission.task_index(),
+            task_count: self.mission.tasks().len(),
+            kind: task.map(|t| t.kind),
+            phase: self.mission.phase(),
+            current_target: task.map_or_else(Vector3::zeros, |t| t.position),
+            next_target: task.map(|t| self.mission.next_waypoint(&t.position)),
+            tool_to_target,
+            changed,
+        }
+    }
+
+    /// One cycle: measures the tool-to-aim distance and advances the sequencer.
+    pub fn step(&mut self, input: &MissionTrackerInput<'_>) -> MissionTrackerOutput {
+        let Some(task) = self.mission.current_task().copied() else {
+            return self.output(f64::INFINITY, false);
+        };
+        let target = match input.estimate {
+            Some(estimate)
+                if task.kind == TaskKind::Pick
+                    && estimate.position.iter().all(|v| v.is_finite())
+                    && estimate.velocity.iter().all(|v| v.is_finite()) =>
+            {
+                estimate
+            }
+            _ => TargetEstimate::fixed(task.position),
+        };
+        let finite = input.arm_q.len() == self.robot.arm_dof()
+            && input.arm_q.iter().all(|q| q.is_finite())
+            && [input.base.x, input.base.y, input.base.yaw]
+                .iter()
+                .all(|v| v.is_finite());
+        let tool_to_target = if finite {
+            let tool = self.robot.tool_pose(&input.base, input.arm_q);
+            let aim = reach_aim(&task, &target, &self.config);
+            (tool.translation.vector - aim.position).norm()
+        } else {
+            f64::INFINITY
+        };
+        let progress = match input.final_progress {
+            Some(report)
+                if report.task_index == self.mission.task_index()
+                    && self.mission.phase() == Phase::Final =>
+            {
+                report.progress
+            }
+            _ => TaskProgress::Active,
+        };
+        let status = self.mission.step(tool_to_target, progress);
+        self.output(tool_to_target, status.changed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn robot() -> Robot {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        Robot::load(&dir, "frankie").unwrap()
+    }
+
+    /// The Frankie ready pose (tool at (0.634, 0, 0.7926) with the base at the origin).
+    const READY: [f64; 7] = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, std::f64::consts::FRAC_PI_4];
+
+    fn tracker(tasks: Vec<MissionTask>) -> MissionTracker {
+        MissionTracker::new(
+            robot(),
+            OnTheMoveConfig::default(),
+            tasks,
+            Vector3::zeros(),
+        )
+    }
+
+    fn pick_place(pick: Vector3<f64>, place: Vector3<f64>) -> Vec<MissionTask> {
+        vec![
+            MissionTask {
+                kind: TaskKind::Pick,
+                item: 0,
+                position: pick,
+            },
+            MissionTask {
+                kind: TaskKind::Place,
+                item: 0,
+                position: place,
+            },
+        ]
+    }
+
+    fn input(base: BasePose, estimate: Option<TargetEstimate>) -> MissionTrackerInput<'static> {
+        MissionTrackerInput {
+            base,
+            arm_q: &READY,
+            estimate,
+            final_progress: None,
+        }
+    }
+
+    #[test]
+    fn switches_to_final_when_the_tool_reaches_the_perceived_target() {
+        let tool = Vector3::new(0.634, 0.0, 0.7926);
+        // The known position is 1 m off; perception sees the cube right at the tool.
+        let mut t = tracker(pick_place(tool + Vector3::x(), Vector3::new(4.0, 0.0, 0.35)));
+        let out = t.step(&input(BasePose::new(0.0, 0.0, 0.0), None));
+        assert_eq!(out.phase, Phase::Reach);
+        assert!((out.tool_to_target - 1.0).abs() < 1e-3, "{}", out.tool_to_target);
+        assert_eq!(out.next_target, Some(Vector3::new(4.0, 0.0, 0.35)));
+        let seen = TargetEstimate::fixed(tool + Vector3::new(0.0, 0.05, 0.0));
+        let out = t.step(&input(BasePose::new(0.0, 0.0, 0.0), Some(seen)));
+        assert!(out.changed);
+        assert_eq!(out.phase, Phase::Final);
+        assert!((out.tool_to_target - 0.05).abs() < 1e-3);
+    }
+
+    #[test]
+    fn progress_counts_only_for_the_current_task_in_the_final_phase() {
+        let tool = Vector3::new(0.634, 0.0, 0.7926);
+        let mut t = tracker(pick_place(tool, Vector3::new(4.0, 0.0, 0.35)));
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        let done = |task_index| {
+            Some(FinalProgress {
+                task_index,
+                progress: TaskProgress::Done,
+            })
+        };
+        // "Done" while reaching is ignored; the tool is at the target, so the phase turns Final.
+        let out = t.step(&MissionTrackerInput {
+            final_progress: done(0),
+            ..input(base, None)
+        });
+        assert_eq!((out.task_index, out.phase), (0, Phase::Final));
+        // A report about another task is ignored.
+        let out = t.step(&MissionTrackerInput {
+            final_progress: done(1),
+            ..input(base, None)
+        });
+        assert_eq!((out.task_index, out.phase), (0, Phase::Final));
+        let out = t.step(&MissionTrackerInput {
+            final_progress: done(0),
+            ..input(base, None)
+        });
+        assert_eq!((out.task_index, out.phase, out.kind), (1, Phase::Reach, Some(TaskKind::Place)));
+        // The previous task's "done" cannot complete the place task.
+        let out = t.step(&MissionTrackerInput {
+            final_progress: done(0),
+            ..input(base, None)
+        });
+        assert_eq!(out.task_index, 1);
+        // The last task's next target is the run-out point beyond it.
+        let next = out.next_target.unwrap();
+        assert!(next.x > 4.0, "{next}");
+    }
+
+    #[test]
+    fn the_place_aim_is_raised_to_the_release_height() {
+        let config = OnTheMoveConfig::default();
+        let task = MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: Vector3::new(1.0, 0.0, 0.3),
+        };
+        let aim = reach_aim(&task, &TargetEstimate::fixed(task.position), &config);
+        let lift = config.final_phase.drop.release_height - config.reacher.pregrasp_height;
+        assert!((aim.position.z - (0.3 + lift)).abs() < 1e-12);
+        let pick = MissionTask {
+            kind: TaskKind::Pick,
+            ..task
+        };
+        assert_eq!(
+            reach_aim(&pick, &TargetEstimate::fixed(pick.position), &config).position,
+            pick.position
+        );
+    }
+
+    #[test]
+    fn bad_joint_values_never_advance_the_mission() {
+        let tool = Vector3::new(0.634, 0.0, 0.7926);
+        let mut t = tracker(pick_place(tool, Vector3::new(4.0, 0.0, 0.35)));
+        let q = [f64::NAN; 7];
+        let out = t.step(&MissionTrackerInput {
+            base: BasePose::new(0.0, 0.0, 0.0),
+            arm_q: &q,
+            estimate: None,
+            final_progress: None,
+        });
+        assert_eq!(out.phase, Phase::Reach);
+        assert!(out.tool_to_target.is_infinite());
+    }
+}
