@@ -708,3 +708,6 @@ message!(ActiveController, |m, c| {
     c.code::<ControllerVariant>("variant", m.variant)
         .map(|_| ())
 });
+
+mod supervision;
+pub use supervision::*;

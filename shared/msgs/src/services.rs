@@ -82,6 +82,9 @@ pub const ALL: [&str; 20] = [
     HW_BASE_STATE,
 ];
 
+/// The supervisor's process table ([`crate::SupervisorStatus`]).
+pub const SUPERVISOR_STATUS: &str = "motm/v1/supervisor/status";
+
 #[cfg(test)]
 mod tests {
     use super::*;
