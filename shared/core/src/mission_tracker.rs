@@ -182,12 +182,7 @@ mod tests {
     const READY: [f64; 7] = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, std::f64::consts::FRAC_PI_4];
 
     fn tracker(tasks: Vec<MissionTask>) -> MissionTracker {
-        MissionTracker::new(
-            robot(),
-            OnTheMoveConfig::default(),
-            tasks,
-            Vector3::zeros(),
-        )
+        MissionTracker::new(robot(), OnTheMoveConfig::default(), tasks, Vector3::zeros())
     }
 
     fn pick_place(pick: Vector3<f64>, place: Vector3<f64>) -> Vec<MissionTask> {
@@ -218,10 +213,17 @@ mod tests {
     fn switches_to_final_when_the_tool_reaches_the_perceived_target() {
         let tool = Vector3::new(0.634, 0.0, 0.7926);
         // The known position is 1 m off; perception sees the cube right at the tool.
-        let mut t = tracker(pick_place(tool + Vector3::x(), Vector3::new(4.0, 0.0, 0.35)));
+        let mut t = tracker(pick_place(
+            tool + Vector3::x(),
+            Vector3::new(4.0, 0.0, 0.35),
+        ));
         let out = t.step(&input(BasePose::new(0.0, 0.0, 0.0), None));
         assert_eq!(out.phase, Phase::Reach);
-        assert!((out.tool_to_target - 1.0).abs() < 1e-3, "{}", out.tool_to_target);
+        assert!(
+            (out.tool_to_target - 1.0).abs() < 1e-3,
+            "{}",
+            out.tool_to_target
+        );
         assert_eq!(out.next_target, Some(Vector3::new(4.0, 0.0, 0.35)));
         let seen = TargetEstimate::fixed(tool + Vector3::new(0.0, 0.05, 0.0));
         let out = t.step(&input(BasePose::new(0.0, 0.0, 0.0), Some(seen)));
@@ -257,7 +259,10 @@ mod tests {
             final_progress: done(0),
             ..input(base, None)
         });
-        assert_eq!((out.task_index, out.phase, out.kind), (1, Phase::Reach, Some(TaskKind::Place)));
+        assert_eq!(
+            (out.task_index, out.phase, out.kind),
+            (1, Phase::Reach, Some(TaskKind::Place))
+        );
         // The previous task's "done" cannot complete the place task.
         let out = t.step(&MissionTrackerInput {
             final_progress: done(0),

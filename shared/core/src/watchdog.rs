@@ -181,11 +181,13 @@ impl Watchdog {
 
     /// The fault that safe-stop reports at `now_ns` (by priority), or `None` when all is well.
     pub fn verdict(&self, now_ns: u64) -> Option<SafetyFault> {
-        self.faults(now_ns).into_iter().min_by_key(|fault| match fault {
-            SafetyFault::HeartbeatLost(i) => (0, *i),
-            SafetyFault::StaleCommand(i) => (1, *i),
-            SafetyFault::DeadlineMiss(i) => (2, *i),
-        })
+        self.faults(now_ns)
+            .into_iter()
+            .min_by_key(|fault| match fault {
+                SafetyFault::HeartbeatLost(i) => (0, *i),
+                SafetyFault::StaleCommand(i) => (1, *i),
+                SafetyFault::DeadlineMiss(i) => (2, *i),
+            })
     }
 }
 

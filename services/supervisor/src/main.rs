@@ -1,0 +1,349 @@
+//! `supervisor`: starts the processes of a stack config, restarts dead ones with backoff after
+//! cleaning their iceoryx2 resources, publishes the process table, and runs the mission
+//! (current task, next target, phase) on `MISSION_STATE` at the control rate.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Parser;
+use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
+use motm_core::Robot;
+use motm_core::kinematics::BasePose;
+use motm_core::mission::{Phase, TaskKind};
+use motm_core::mission_tracker::{
+    FinalProgress, MissionTracker, MissionTrackerInput, MissionTrackerOutput,
+};
+use motm_core::on_the_move::OnTheMoveConfig;
+use motm_core::{TargetEstimate, TaskProgress};
+use motm_msgs::{
+    BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TaskPhase,
+    TwistCommand, services,
+};
+use motm_sim::Scenario;
+use motm_supervisor::{LaunchContext, LaunchSpec, ProcessTable, StackConfig, TableEvent, binaries};
+use nalgebra::Vector3;
+
+/// Exit code for bad input (a bad file, key or value).
+const EXIT_BAD_INPUT: u8 = 2;
+
+/// Starts and supervises a motm stack and runs its mission.
+#[derive(Parser)]
+#[command(name = "supervisor")]
+struct Args {
+    /// Stack config file, or a name in the config folder (e.g. `frankie`).
+    #[arg(long, default_value = "frankie")]
+    stack: String,
+    /// Config folder (default: $MOTM_CONFIG_DIR, ./config, or the source tree's config/).
+    #[arg(long)]
+    config_dir: Option<PathBuf>,
+    /// Scenario file or name (default: the stack's `scenario`).
+    #[arg(long)]
+    scenario: Option<String>,
+    /// Random seed (default: the stack's `seed`).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Control rate, Hz (default: the stack's `control_rate_hz`).
+    #[arg(long)]
+    rate: Option<f64>,
+    /// Folder of the service binaries (default: this executable's folder).
+    #[arg(long)]
+    bin_dir: Option<PathBuf>,
+    /// Only manage the processes; publish no mission.
+    #[arg(long)]
+    no_mission: bool,
+}
+
+/// The config folder: the flag, `$MOTM_CONFIG_DIR`, `./config`, or the source tree's.
+fn config_dir(flag: Option<PathBuf>) -> PathBuf {
+    flag.or_else(|| std::env::var_os("MOTM_CONFIG_DIR").map(PathBuf::from))
+        .unwrap_or_else(|| {
+            let local = Path::new("config");
+            if local.join("robots").is_dir() {
+                local.to_path_buf()
+            } else {
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
+            }
+        })
+}
+
+/// A scenario path: as given if it exists, else `<config_dir>/scenarios/<name>.toml`.
+fn scenario_path(config_dir: &Path, name: &str) -> PathBuf {
+    let direct = PathBuf::from(name);
+    if direct.is_file() {
+        direct
+    } else {
+        config_dir.join("scenarios").join(format!("{name}.toml"))
+    }
+}
+
+/// Everything the supervisor needs, checked before anything starts.
+struct Setup {
+    stack: StackConfig,
+    specs: Vec<LaunchSpec>,
+    control_rate_hz: f64,
+    mission: Option<MissionTracker>,
+}
+
+fn setup(args: &Args) -> Result<Setup, String> {
+    let config_dir = config_dir(args.config_dir.clone());
+    let stack = StackConfig::from_file(&StackConfig::resolve(&config_dir, &args.stack))
+        .map_err(|e| e.to_string())?;
+    let control_rate_hz = args.rate.unwrap_or(stack.control_rate_hz);
+    if !(control_rate_hz.is_finite() && control_rate_hz > 0.0) {
+        return Err(format!(
+            "--rate must be a finite number > 0, got {control_rate_hz}"
+        ));
+    }
+    let scenario = scenario_path(
+        &config_dir,
+        args.scenario.as_deref().unwrap_or(&stack.scenario),
+    );
+    let bin_dir = match &args.bin_dir {
+        Some(dir) => dir.clone(),
+        None => binaries::own_dir().map_err(|e| format!("cannot find own executable: {e}"))?,
+    };
+    let missing = binaries::missing(&bin_dir, stack.processes.iter().map(|p| p.name.as_str()));
+    if !missing.is_empty() {
+        return Err(format!(
+            "service binaries missing in {}: {}",
+            bin_dir.display(),
+            missing.join(", ")
+        ));
+    }
+    let context = LaunchContext {
+        config_dir: config_dir.clone(),
+        scenario: scenario.clone(),
+        seed: args.seed.unwrap_or(stack.seed),
+        control_rate_hz,
+    };
+    let specs = stack
+        .processes
+        .iter()
+        .map(|p| LaunchSpec {
+            name: p.name.clone(),
+            program: binaries::binary_path(&bin_dir, &p.name),
+            args: stack.expand_args(p, &context),
+            env: Vec::new(),
+        })
+        .collect();
+    let mission = if args.no_mission {
+        None
+    } else {
+        let scenario = Scenario::from_file(&scenario).map_err(|e| e.to_string())?;
+        let robot = Robot::load(&config_dir, &scenario.robot).map_err(|e| e.to_string())?;
+        let start = scenario.start();
+        Some(MissionTracker::new(
+            robot,
+            OnTheMoveConfig::default(),
+            scenario.mission_tasks(),
+            Vector3::new(start.x, start.y, 0.0),
+        ))
+    };
+    Ok(Setup {
+        stack,
+        specs,
+        control_rate_hz,
+        mission,
+    })
+}
+
+/// Logs table events on stderr.
+fn log(events: &[TableEvent]) {
+    for event in events {
+        match event {
+            TableEvent::Started { name, pid, restart } => {
+                let verb = if *restart { "restarted" } else { "started" };
+                eprintln!("supervisor: {verb} {name} (pid {pid})");
+            }
+            TableEvent::Exited {
+                name,
+                pid,
+                exit,
+                restart_in,
+            } => match restart_in {
+                Some(delay) => eprintln!(
+                    "supervisor: {name} (pid {pid}) exited ({exit}); restart in {} ms",
+                    delay.as_millis()
+                ),
+                None => eprintln!("supervisor: {name} (pid {pid}) exited ({exit})"),
+            },
+            TableEvent::SpawnFailed { name, error } => {
+                eprintln!("supervisor: cannot start {name}: {error}");
+            }
+            TableEvent::CleanupFailed { name, error } => {
+                eprintln!("supervisor: cleanup after {name}: {error}");
+            }
+        }
+    }
+}
+
+/// The mission task's bus inputs and the stamps that guard them.
+struct MissionPorts {
+    joints: Latest<JointState>,
+    odometry: Latest<BaseOdometry>,
+    target: Latest<motm_msgs::TargetEstimate>,
+    final_twist: Latest<TwistCommand>,
+    state: Publisher<MissionState>,
+    /// When the current task started, ns: older perception estimates belong to another object.
+    task_started_ns: u64,
+    /// When the current final phase started, ns: older "complete" reports belong to another task.
+    final_started_ns: u64,
+}
+
+impl MissionPorts {
+    fn new(bus: &Bus, now_ns: u64) -> Result<Self, motm_bus::BusError> {
+        let qos = Qos::default();
+        Ok(Self {
+            joints: Latest::new(bus, services::ARM_JOINT_STATE, &qos)?,
+            odometry: Latest::new(bus, services::BASE_ODOMETRY, &qos)?,
+            target: Latest::new(bus, services::PERCEPTION_TARGET, &qos)?,
+            final_twist: Latest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
+            state: Publisher::new(bus, services::MISSION_STATE, &qos)?,
+            task_started_ns: now_ns,
+            final_started_ns: now_ns,
+        })
+    }
+
+    /// One mission cycle at `now_ns`: read, step, publish.
+    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64) {
+        // A failed read leaves the previous value, which the stamps guard.
+        let _ = self.joints.update();
+        let _ = self.odometry.update();
+        let _ = self.target.update();
+        let _ = self.final_twist.update();
+        let out = match (self.joints.get(), self.odometry.get()) {
+            (Some(joints), Some(odometry)) => {
+                let count = (joints.joint_count as usize).min(joints.position.len());
+                let estimate = self
+                    .target
+                    .get()
+                    .filter(|t| t.visible == 1 && t.header.stamp_ns >= self.task_started_ns)
+                    .map(|t| TargetEstimate {
+                        position: Vector3::from(t.position),
+                        velocity: Vector3::from(t.velocity),
+                    });
+                let final_progress = self
+                    .final_twist
+                    .get()
+                    .filter(|t| t.header.stamp_ns >= self.final_started_ns)
+                    .map(|t| FinalProgress {
+                        task_index: tracker.mission().task_index(),
+                        progress: if t.phase() == Some(TaskPhase::Complete) {
+                            TaskProgress::Done
+                        } else {
+                            TaskProgress::Active
+                        },
+                    });
+                tracker.step(&MissionTrackerInput {
+                    base: BasePose::new(odometry.x, odometry.y, odometry.yaw),
+                    arm_q: &joints.position[..count],
+                    estimate,
+                    final_progress,
+                })
+            }
+            _ => tracker.output(f64::INFINITY, false),
+        };
+        if out.changed {
+            eprintln!(
+                "supervisor: mission task {}/{} phase {:?} (tool to target {:.3} m)",
+                out.task_index, out.task_count, out.phase, out.tool_to_target
+            );
+            if out.phase == Phase::Final {
+                self.final_started_ns = now_ns;
+            } else {
+                self.task_started_ns = now_ns;
+            }
+        }
+        let _ = self.state.publish(mission_state(&out));
+    }
+}
+
+/// The [`MissionState`] message of a mission output.
+fn mission_state(out: &MissionTrackerOutput) -> MissionState {
+    use motm_msgs::Message;
+    let mut m = MissionState::zeroed();
+    m.task_index = out.task_index as u32;
+    m.task_count = out.task_count as u32;
+    m.task_kind = match out.kind {
+        Some(TaskKind::Pick) | None => TaskKindCode::Pick,
+        Some(TaskKind::Place) => TaskKindCode::Place,
+        Some(TaskKind::PressButton) => TaskKindCode::PressButton,
+    }
+    .into();
+    m.phase = match out.phase {
+        Phase::Reach => TaskPhase::Reach,
+        Phase::Final => TaskPhase::Final,
+        Phase::Complete => TaskPhase::Complete,
+    }
+    .into();
+    m.current_target = out.current_target.into();
+    if let Some(next) = out.next_target {
+        m.next_target = next.into();
+        m.has_next = 1;
+    }
+    m
+}
+
+fn run(setup: Setup) -> Result<(), String> {
+    let Setup {
+        stack,
+        specs,
+        control_rate_hz,
+        mut mission,
+    } = setup;
+    let ipc = IpcConfig::from_env();
+    let bus = Bus::open("supervisor").map_err(|e| e.to_string())?;
+    let mut status =
+        Publisher::<SupervisorStatus>::new(&bus, services::SUPERVISOR_STATUS, &Qos::default())
+            .map_err(|e| e.to_string())?;
+    let mut ports = match mission {
+        Some(_) => {
+            Some(MissionPorts::new(&bus, motm_bus::monotonic_now_ns()).map_err(|e| e.to_string())?)
+        }
+        None => None,
+    };
+    let mut table = ProcessTable::new(specs, stack.restart, ipc);
+    // The mission state is on the bus before the controllers start.
+    if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
+        ports.cycle(tracker, motm_bus::monotonic_now_ns());
+    }
+    log(&table.start_all(motm_bus::monotonic_now_ns()));
+    let _ = status.publish(table.status());
+    let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(control_rate_hz))
+        .map_err(|e| e.to_string())?;
+    let status_every = (control_rate_hz / 10.0).ceil().max(1.0) as u64;
+    let exit = service.run_periodic(|cycle| {
+        let events = table.poll(cycle.now_ns);
+        log(&events);
+        if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
+            ports.cycle(tracker, cycle.now_ns);
+        }
+        if !events.is_empty() || cycle.cycle % status_every == 0 {
+            let _ = status.publish(table.status());
+        }
+        Flow::Continue
+    });
+    eprintln!("supervisor: stopping the stack");
+    log(&table.shutdown(Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0)));
+    let _ = status.publish(table.status());
+    exit.map(|_| ()).map_err(|e| e.to_string())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let setup = match setup(&args) {
+        Ok(setup) => setup,
+        Err(e) => {
+            eprintln!("supervisor: {e}");
+            return ExitCode::from(EXIT_BAD_INPUT);
+        }
+    };
+    match run(setup) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("supervisor: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

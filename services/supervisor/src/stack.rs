@@ -1,0 +1,386 @@
+//! The stack configuration: the processes of one robot's stack, their rates and arguments,
+//! the restart policy and the watchdog settings (`config/frankie.toml`, `config/fetch.toml`,
+//! `config/husky_ur5.toml`). Not to be confused with the robot model in `config/robots/`.
+//!
+//! Process arguments are templates: `{config_dir}`, `{scenario}`, `{robot}`, `{seed}`,
+//! `{rate}` (the process's own rate), `{control_rate}` and `{stack}` (this file) are replaced
+//! when the process is launched.
+
+use std::path::{Path, PathBuf};
+
+use motm_core::ModelError;
+use motm_core::restart_policy::RestartPolicy;
+use motm_core::watchdog::WatchdogConfig;
+use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
+use serde::Deserialize;
+
+/// The placeholders an argument template may use.
+pub const PLACEHOLDERS: [&str; 7] = [
+    "config_dir",
+    "scenario",
+    "robot",
+    "seed",
+    "rate",
+    "control_rate",
+    "stack",
+];
+
+/// One process of the stack.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProcessConfig {
+    /// Process name = binary name = heartbeat name (e.g. `qp-resolver`).
+    pub name: String,
+    /// Cargo package that builds the binary (default `motm-<name>`).
+    #[serde(default)]
+    pub package: Option<String>,
+    /// The process's own cycle rate, Hz; absent means the stack's control rate.
+    #[serde(default)]
+    pub rate_hz: Option<f64>,
+    /// Whether the process is on the control path: the watchdog safe-stops when its
+    /// heartbeat goes stale or it reports deadline misses.
+    #[serde(default)]
+    pub control_path: bool,
+    /// Argument templates (see the module documentation for the placeholders).
+    #[serde(default)]
+    pub args: Vec<String>,
+}
+
+impl ProcessConfig {
+    /// The Cargo package of the binary.
+    pub fn package(&self) -> String {
+        self.package
+            .clone()
+            .unwrap_or_else(|| format!("motm-{}", self.name))
+    }
+}
+
+/// A robot's stack: processes, rates, restart policy and watchdog settings.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StackConfig {
+    /// Robot model name (`<config_dir>/robots/<robot>.toml`).
+    pub robot: String,
+    /// Scenario run when none is given (a name in `<config_dir>/scenarios/` or a path).
+    pub scenario: String,
+    /// Control rate, Hz (reacher, final phase, QP resolver, supervisor's mission task).
+    #[serde(default = "default_control_rate")]
+    pub control_rate_hz: f64,
+    /// Default random seed.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Longest wait for the processes to exit after SIGTERM before SIGKILL, ms.
+    #[serde(default = "default_shutdown_grace")]
+    pub shutdown_grace_ms: f64,
+    /// Restart backoff.
+    #[serde(default)]
+    pub restart: RestartPolicy,
+    /// Watchdog settings.
+    #[serde(default)]
+    pub watchdog: WatchdogConfig,
+    /// The processes, in start order (stopped in reverse order).
+    #[serde(rename = "process")]
+    pub processes: Vec<ProcessConfig>,
+    /// The file this was read from.
+    #[serde(skip)]
+    pub path: PathBuf,
+}
+
+fn default_control_rate() -> f64 {
+    200.0
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+fn default_shutdown_grace() -> f64 {
+    3000.0
+}
+
+/// Values substituted into argument templates at launch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LaunchContext {
+    /// Config folder.
+    pub config_dir: PathBuf,
+    /// Scenario file.
+    pub scenario: PathBuf,
+    /// Random seed.
+    pub seed: u64,
+    /// Control rate, Hz (overrides the stack's `control_rate_hz`).
+    pub control_rate_hz: f64,
+}
+
+impl StackConfig {
+    /// Reads and checks a stack file; errors name the file and the key.
+    pub fn from_file(path: &Path) -> Result<Self, ModelError> {
+        let mut config: StackConfig = ModelError::parse_toml(path)?;
+        config.path = path.to_path_buf();
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The stack file of `name` in `config_dir` (`<config_dir>/<name>.toml`), or `name` itself
+    /// when it is an existing path.
+    pub fn resolve(config_dir: &Path, name: &str) -> PathBuf {
+        let direct = PathBuf::from(name);
+        if direct.is_file() {
+            direct
+        } else {
+            config_dir.join(format!("{name}.toml"))
+        }
+    }
+
+    /// Checks names, rates, templates and the nested settings.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let invalid = |key: String, message: String| ModelError::invalid(&self.path, key, message);
+        positive(&self.path, "control_rate_hz", self.control_rate_hz)?;
+        positive(&self.path, "shutdown_grace_ms", self.shutdown_grace_ms)?;
+        self.restart
+            .validate()
+            .map_err(|(key, message)| invalid(format!("restart.{key}"), message))?;
+        self.watchdog
+            .validate()
+            .map_err(|(key, message)| invalid(format!("watchdog.{key}"), message))?;
+        if self.processes.is_empty() || self.processes.len() > MAX_SUPERVISED_PROCESSES {
+            return Err(invalid(
+                "process".into(),
+                format!(
+                    "needs 1 to {MAX_SUPERVISED_PROCESSES} processes, got {}",
+                    self.processes.len()
+                ),
+            ));
+        }
+        for (i, process) in self.processes.iter().enumerate() {
+            let key = |field: &str| format!("process[{i}].{field}");
+            if !valid_process_name(&process.name) {
+                return Err(invalid(
+                    key("name"),
+                    format!(
+                        "'{}' must be 1 to {PROCESS_NAME_BYTES} characters of a-z, 0-9 and '-'",
+                        process.name
+                    ),
+                ));
+            }
+            if process.name == "supervisor" {
+                return Err(invalid(
+                    key("name"),
+                    "the supervisor is not one of its own processes".into(),
+                ));
+            }
+            if self.processes[..i].iter().any(|p| p.name == process.name) {
+                return Err(invalid(
+                    key("name"),
+                    format!("'{}' is listed twice", process.name),
+                ));
+            }
+            if let Some(rate) = process.rate_hz {
+                positive(&self.path, &key("rate_hz"), rate)?;
+            }
+            for (j, arg) in process.args.iter().enumerate() {
+                check_template(arg)
+                    .map_err(|message| invalid(format!("{}[{j}]", key("args")), message))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The named process, if listed.
+    pub fn process(&self, name: &str) -> Option<&ProcessConfig> {
+        self.processes.iter().find(|p| p.name == name)
+    }
+
+    /// The rate of `process` under control rate `control_rate_hz`, Hz.
+    pub fn rate_of(&self, process: &ProcessConfig, control_rate_hz: f64) -> f64 {
+        process.rate_hz.unwrap_or(control_rate_hz)
+    }
+
+    /// The arguments of `process` with every placeholder replaced.
+    pub fn expand_args(&self, process: &ProcessConfig, context: &LaunchContext) -> Vec<String> {
+        let rate = self.rate_of(process, context.control_rate_hz);
+        let values = [
+            ("config_dir", context.config_dir.display().to_string()),
+            ("scenario", context.scenario.display().to_string()),
+            ("robot", self.robot.clone()),
+            ("seed", context.seed.to_string()),
+            ("rate", rate.to_string()),
+            ("control_rate", context.control_rate_hz.to_string()),
+            ("stack", self.path.display().to_string()),
+        ];
+        process
+            .args
+            .iter()
+            .map(|arg| {
+                values.iter().fold(arg.clone(), |text, (name, value)| {
+                    text.replace(&format!("{{{name}}}"), value)
+                })
+            })
+            .collect()
+    }
+}
+
+/// Process names: what iceoryx2 node names and heartbeat names allow here.
+fn valid_process_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= PROCESS_NAME_BYTES
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-')
+}
+
+/// A finite value > 0, or an error naming `key`.
+fn positive(path: &Path, key: &str, value: f64) -> Result<(), ModelError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(ModelError::invalid(
+            path,
+            key,
+            format!("must be a finite number > 0, got {value}"),
+        ))
+    }
+}
+
+/// Checks that every `{...}` in `arg` is a known placeholder.
+fn check_template(arg: &str) -> Result<(), String> {
+    let mut rest = arg;
+    while let Some(open) = rest.find('{') {
+        let after = &rest[open + 1..];
+        let Some(close) = after.find('}') else {
+            return Err(format!("'{arg}': unclosed '{{'"));
+        };
+        let name = &after[..close];
+        if !PLACEHOLDERS.contains(&name) {
+            return Err(format!(
+                "'{arg}': unknown placeholder {{{name}}}; expected one of {}",
+                PLACEHOLDERS.map(|p| format!("{{{p}}}")).join(", ")
+            ));
+        }
+        rest = &after[close + 1..];
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
+    }
+
+    fn parse(text: &str) -> Result<StackConfig, ModelError> {
+        let path = Path::new("stack.toml");
+        let mut config: StackConfig = ModelError::parse_toml_str(path, text)?;
+        config.path = path.to_path_buf();
+        config.validate()?;
+        Ok(config)
+    }
+
+    #[test]
+    fn every_shipped_stack_loads_and_names_each_service_once() {
+        for robot in ["frankie", "fetch", "husky_ur5"] {
+            let path = StackConfig::resolve(&config_dir(), robot);
+            let stack = StackConfig::from_file(&path).unwrap();
+            assert_eq!(stack.robot, robot);
+            for name in [
+                "sim-world",
+                "panda-driver",
+                "ld60-driver",
+                "perception",
+                "base-planner",
+                "reacher",
+                "final-phase",
+                "qp-resolver",
+                "watchdog",
+            ] {
+                assert!(stack.process(name).is_some(), "{robot}: {name} missing");
+            }
+            assert!(stack.process("qp-resolver").unwrap().control_path);
+        }
+    }
+
+    #[test]
+    fn templates_expand_with_the_process_rate() {
+        let stack = parse(
+            r#"
+            robot = "frankie"
+            scenario = "exp1-dynamic"
+            [[process]]
+            name = "sim-world"
+            rate_hz = 1000.0
+            args = ["--scenario", "{scenario}", "--rate", "{rate}", "--seed={seed}"]
+            [[process]]
+            name = "reacher"
+            args = ["--rate", "{rate}", "--robot", "{robot}", "--stack", "{stack}"]
+            "#,
+        )
+        .unwrap();
+        let context = LaunchContext {
+            config_dir: PathBuf::from("/c"),
+            scenario: PathBuf::from("/c/s.toml"),
+            seed: 7,
+            control_rate_hz: 1000.0,
+        };
+        assert_eq!(
+            stack.expand_args(&stack.processes[0], &context),
+            ["--scenario", "/c/s.toml", "--rate", "1000", "--seed=7"]
+        );
+        assert_eq!(
+            stack.expand_args(&stack.processes[1], &context),
+            [
+                "--rate",
+                "1000",
+                "--robot",
+                "frankie",
+                "--stack",
+                "stack.toml"
+            ]
+        );
+        assert_eq!(stack.processes[1].package(), "motm-reacher");
+    }
+
+    #[test]
+    fn bad_stacks_name_the_key() {
+        let base = "robot = \"frankie\"\nscenario = \"x\"\n";
+        let cases = [
+            (
+                "[[process]]\nname = \"a\"\nargs = [\"{nope}\"]\n",
+                "process[0].args[0]",
+            ),
+            ("[[process]]\nname = \"A b\"\n", "process[0].name"),
+            (
+                "[[process]]\nname = \"a\"\n[[process]]\nname = \"a\"\n",
+                "process[1].name",
+            ),
+            (
+                "[[process]]\nname = \"a\"\nrate_hz = -1.0\n",
+                "process[0].rate_hz",
+            ),
+            (
+                "[restart]\nmultiplier = 0.1\n[[process]]\nname = \"a\"\n",
+                "restart.multiplier",
+            ),
+            (
+                "[watchdog]\nstale_cycles = 0\n[[process]]\nname = \"a\"\n",
+                "watchdog.stale_cycles",
+            ),
+            (
+                "control_rate_hz = 0.0\n[[process]]\nname = \"a\"\n",
+                "control_rate_hz",
+            ),
+        ];
+        for (text, key) in cases {
+            let err = parse(&format!("{base}{text}")).unwrap_err().to_string();
+            assert!(
+                err.contains("stack.toml") && err.contains(key),
+                "{key}: {err}"
+            );
+        }
+        // Unknown keys are errors too, located by line.
+        let err = parse(&format!("{base}[[process]]\nname = \"a\"\nrte_hz = 1.0\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("rte_hz"), "{err}");
+    }
+}
