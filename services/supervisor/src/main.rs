@@ -2,7 +2,7 @@
 //! cleaning their iceoryx2 resources, publishes the process table, and runs the mission
 //! (current task, next target, phase) on `MISSION_STATE` at the control rate.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -54,29 +54,6 @@ struct Args {
     no_mission: bool,
 }
 
-/// The config folder: the flag, `$MOTM_CONFIG_DIR`, `./config`, or the source tree's.
-fn config_dir(flag: Option<PathBuf>) -> PathBuf {
-    flag.or_else(|| std::env::var_os("MOTM_CONFIG_DIR").map(PathBuf::from))
-        .unwrap_or_else(|| {
-            let local = Path::new("config");
-            if local.join("robots").is_dir() {
-                local.to_path_buf()
-            } else {
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
-            }
-        })
-}
-
-/// A scenario path: as given if it exists, else `<config_dir>/scenarios/<name>.toml`.
-fn scenario_path(config_dir: &Path, name: &str) -> PathBuf {
-    let direct = PathBuf::from(name);
-    if direct.is_file() {
-        direct
-    } else {
-        config_dir.join("scenarios").join(format!("{name}.toml"))
-    }
-}
-
 /// Everything the supervisor needs, checked before anything starts.
 struct Setup {
     stack: StackConfig,
@@ -86,7 +63,7 @@ struct Setup {
 }
 
 fn setup(args: &Args) -> Result<Setup, String> {
-    let config_dir = config_dir(args.config_dir.clone());
+    let config_dir = motm_supervisor::config_dir(args.config_dir.clone());
     let stack = StackConfig::from_file(&StackConfig::resolve(&config_dir, &args.stack))
         .map_err(|e| e.to_string())?;
     let control_rate_hz = args.rate.unwrap_or(stack.control_rate_hz);
@@ -95,7 +72,7 @@ fn setup(args: &Args) -> Result<Setup, String> {
             "--rate must be a finite number > 0, got {control_rate_hz}"
         ));
     }
-    let scenario = scenario_path(
+    let scenario = motm_supervisor::scenario_path(
         &config_dir,
         args.scenario.as_deref().unwrap_or(&stack.scenario),
     );
