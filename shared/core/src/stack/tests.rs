@@ -423,3 +423,67 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
         "the run must reach the final phase of the pick: {phases_seen:?}"
     );
 }
+
+/// Perception with the camera at the tool, looking straight down from 0.5 m at the world
+/// origin, sees a red square at the principal point.
+#[test]
+fn perception_pairs_each_image_with_the_nearest_tool_pose_and_restarts_per_pick() {
+    use super::perception::{CameraFrame, PerceptionCycle};
+    use crate::camera::CameraConfig;
+    use crate::perception::PerceptionConfig;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+    let mut calibration = CameraConfig::default().calibration();
+    calibration.tool_from_camera = Isometry3::identity();
+    let (w, h) = (320usize, 240usize);
+    let grey = vec![100u8; w * h * 3];
+    let mut red = grey.clone();
+    for v in 117..=121 {
+        for u in 157..=161 {
+            red[(v * w + u) * 3..(v * w + u) * 3 + 3].copy_from_slice(&[200, 20, 20]);
+        }
+    }
+    let looking_down = |x: f64| {
+        Isometry3::from_parts(
+            Translation3::new(x, 0.0, 0.5),
+            UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.0),
+        )
+    };
+    fn frame(pixels: &[u8], stamp_ns: u64) -> CameraFrame<'_> {
+        CameraFrame {
+            pixels,
+            width: 320,
+            height: 240,
+            stamp_ns,
+        }
+    }
+    let mut cycle = PerceptionCycle::new(PerceptionConfig::default(), calibration, 200);
+    let mut pick = view(0, TaskKind::Pick, Phase::Reach);
+    pick.target = Vector3::zeros();
+    // No tool pose yet: nothing to pair the image with.
+    assert!(cycle.observe(&pick, &frame(&red, 1_000 * MS)).is_none());
+    cycle.record_tool(1_000 * MS, looking_down(1.0));
+    cycle.record_tool(2_000 * MS, looking_down(0.0));
+    // Captured at 1.9 s: paired with the pose at 2 s, so the cube is under x = 0.
+    let report = cycle.observe(&pick, &frame(&red, 1_900 * MS)).expect("a fix");
+    assert!(report.estimate.visible && report.estimate.valid);
+    assert!(report.estimate.position.x.abs() < 0.01, "{report:?}");
+    assert_eq!(report.image_stamp_ns, 1_900 * MS);
+    // Out of view: the fix is held, with the stamp of the image it came from.
+    let held = cycle.observe(&pick, &frame(&grey, 1_950 * MS)).expect("held fix");
+    assert!(!held.estimate.visible);
+    assert_eq!(held.image_stamp_ns, 1_900 * MS);
+    // A place publishes nothing; the next pick starts from scratch.
+    let place = view(1, TaskKind::Place, Phase::Reach);
+    assert!(cycle.observe(&place, &frame(&red, 1_960 * MS)).is_none());
+    let mut next_pick = pick;
+    next_pick.task_index = 2;
+    next_pick.task_count = 4;
+    assert!(cycle.observe(&next_pick, &frame(&grey, 1_970 * MS)).is_none());
+    // Non-finite tool poses are not recorded.
+    let mut nan_pose = looking_down(0.0);
+    nan_pose.translation.vector.x = f64::NAN;
+    cycle.record_tool(1_980 * MS, nan_pose);
+    let report = cycle.observe(&next_pick, &frame(&red, 1_980 * MS)).expect("a fix");
+    assert!(report.estimate.position.iter().all(|x| x.is_finite()));
+}
