@@ -23,7 +23,7 @@ pub struct BasePlannerInput {
 /// What the base planner publishes each cycle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BasePlannerOutput {
-    /// Index of the task the plan is for.
+    /// Index of the task the plan is for (the last task once the mission is complete).
     pub task_index: usize,
     /// The base controller's output: velocity target, closest approach, t_R, range-entry pose.
     pub plan: BaseControllerOutput,
@@ -50,22 +50,17 @@ impl BasePlannerCycle {
         self.refused
     }
 
-    /// One cycle: `None` when the mission is complete (nothing to drive to) or the input was
+    /// One cycle (after the last task, toward the run-out point): `None` when the input was
     /// not finite (counted in [`BasePlannerCycle::refused`]).
     pub fn step(&mut self, input: &BasePlannerInput) -> Option<BasePlannerOutput> {
-        if input.mission.is_complete() {
-            return None;
-        }
+        let task_index = input.mission.base_task_index();
         match self.controller.step(&BaseControllerInput {
-            task_index: input.mission.task_index,
+            task_index,
             base: input.base,
             target: input.target,
             next_target: input.mission.next_waypoint,
         }) {
-            Ok(plan) => Some(BasePlannerOutput {
-                task_index: input.mission.task_index,
-                plan,
-            }),
+            Ok(plan) => Some(BasePlannerOutput { task_index, plan }),
             Err(_) => {
                 self.refused += 1;
                 None

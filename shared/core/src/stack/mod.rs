@@ -16,6 +16,9 @@
 //!   between), so an estimate of the previous pick is always older than that moment.
 //! - **Reach aim** and **resting gripper** are the functions [`crate::on_the_move`] uses
 //!   ([`reach_aim`], [`resting_gripper`]), so both forms agree.
+//! - **Twist rate limit** ([`crate::on_the_move::TwistRateLimit`]) is applied by the QP
+//!   resolver, which picks the twist; the reacher applies the same limit to the twists it sees
+//!   (its own and the final phase's) to know the tool state fed back to it.
 
 pub mod base_planner;
 pub mod final_phase;
@@ -29,18 +32,21 @@ use crate::mission::{Phase, TaskKind};
 use crate::on_the_move::OnTheMoveConfig;
 use crate::types::{GripperCommand, TargetEstimate};
 
-/// The supervisor's mission state as a service receives it.
+/// The mission as the services act on it. Once every task is done the robot drives on to the
+/// run-out point with the arm at its ready pose ([`crate::on_the_move`]'s rule): the view then
+/// has `phase == Complete`, `task_index == task_count`, and `kind`, `target` and
+/// `next_waypoint` describe the last task.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MissionView {
     /// Index of the current task (equals `task_count` when the mission is complete).
     pub task_index: usize,
-    /// Number of tasks in the mission.
+    /// Number of tasks in the mission (at least one).
     pub task_count: usize,
-    /// Kind of the current task (meaningless once the mission is complete).
+    /// Kind of the current task (of the last task once the mission is complete).
     pub kind: TaskKind,
     /// Phase of the current task.
     pub phase: Phase,
-    /// The mission's position of the current target, m.
+    /// The mission's position of the current (or last) target, m.
     pub target: Vector3<f64>,
     /// Where the base heads after the current target (the next target, or the run-out point
     /// after the last one), m.
@@ -56,6 +62,88 @@ impl MissionView {
     /// The current task's kind, or `None` once the mission is complete.
     pub fn current_kind(&self) -> Option<TaskKind> {
         (!self.is_complete()).then_some(self.kind)
+    }
+
+    /// The task the base drives for: the current one, or the last one once complete.
+    pub fn base_task_index(&self) -> usize {
+        self.task_index.min(self.task_count.saturating_sub(1))
+    }
+}
+
+/// The mission state as the supervisor publishes it, decoded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionReport {
+    /// Index of the current task (equals `task_count` when the mission is complete).
+    pub task_index: usize,
+    /// Number of tasks.
+    pub task_count: usize,
+    /// Kind of the current task (ignored once complete).
+    pub kind: TaskKind,
+    /// Phase of the current task.
+    pub phase: Phase,
+    /// The current task's target position, m (ignored once complete).
+    pub target: Vector3<f64>,
+    /// Where the base heads after the current target, if the supervisor says.
+    pub next_waypoint: Option<Vector3<f64>>,
+}
+
+/// Turns mission reports into [`MissionView`]s, remembering the last task so that the services
+/// can go on after the mission completes.
+///
+/// Choice: when a report has no next waypoint, the base heads `run_out_distance` beyond the
+/// target along the direction from the previous task's target (or along world x for the
+/// first task seen), [`crate::mission::Mission::next_waypoint`]'s rule.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MissionLatch {
+    run_out_distance: f64,
+    last: Option<MissionView>,
+}
+
+impl MissionLatch {
+    /// A latch that places missing run-out points `run_out_distance` beyond the target, m.
+    pub fn new(run_out_distance: f64) -> Self {
+        Self {
+            run_out_distance,
+            last: None,
+        }
+    }
+
+    /// The view of `report`: `None` for an empty mission, or a completed one whose last task
+    /// this process never saw.
+    pub fn update(&mut self, report: &MissionReport) -> Option<MissionView> {
+        if report.task_count == 0 {
+            return None;
+        }
+        let complete = report.phase == Phase::Complete || report.task_index >= report.task_count;
+        if complete {
+            let last = self.last?;
+            return Some(MissionView {
+                task_index: report.task_count,
+                task_count: report.task_count,
+                phase: Phase::Complete,
+                ..last
+            });
+        }
+        let next_waypoint = report.next_waypoint.unwrap_or_else(|| {
+            let from = self
+                .last
+                .filter(|l| l.task_index < report.task_index)
+                .map_or(report.target - Vector3::x(), |l| l.target);
+            let mut direction = report.target - from;
+            direction.z = 0.0;
+            let direction = direction.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+            report.target + direction * self.run_out_distance
+        });
+        let view = MissionView {
+            task_index: report.task_index,
+            task_count: report.task_count,
+            kind: report.kind,
+            phase: report.phase,
+            target: report.target,
+            next_waypoint,
+        };
+        self.last = Some(view);
+        Some(view)
     }
 }
 

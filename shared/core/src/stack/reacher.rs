@@ -43,7 +43,7 @@ pub struct ReacherCycleInput<'a> {
 /// Why a reacher cycle produced no twist.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ReacherIdle {
-    /// The current task is in its final phase, or the mission is complete.
+    /// The current task is in its final phase.
     NotReaching,
     /// No base plan for the current task has arrived yet.
     NoPlan,
@@ -77,23 +77,29 @@ impl ReacherCycle {
     }
 
     /// Records a twist another controller commanded (the final phase's), so the tool state fed
-    /// back after it is the commanded motion, as in the single-process controller.
+    /// back after it is the commanded (rate-limited) motion, as in the single-process
+    /// controller.
     pub fn follow(&mut self, twist: Twist) {
         if twist.iter().all(|x| x.is_finite()) {
             self.last_acceleration = (twist - self.last_twist) / self.dt;
-            self.last_twist = twist;
+            self.last_twist = self
+                .config
+                .twist_rate
+                .apply(&self.last_twist, &twist, self.dt);
         }
     }
 
-    /// One cycle: the reach twist of the current task, or why there is none.
+    /// One cycle: the reach twist of the current task (after the last task, the ready pose
+    /// held while the base drives on), or why there is none. The twist is the reacher's own;
+    /// the QP resolver rate-limits it.
     pub fn step(&mut self, input: &ReacherCycleInput<'_>) -> Result<ReacherOutput, ReacherIdle> {
         let mission = &input.mission;
-        if mission.is_complete() || mission.phase != Phase::Reach {
+        if mission.phase == Phase::Final {
             return Err(ReacherIdle::NotReaching);
         }
         let plan = input
             .plan
-            .filter(|p| p.task_index == mission.task_index)
+            .filter(|p| p.task_index == mission.base_task_index())
             .ok_or(ReacherIdle::NoPlan)?;
         if input.arm_q.len() != self.robot.arm_dof() || input.arm_q.iter().any(|q| !q.is_finite()) {
             return Err(ReacherIdle::BadInput);
@@ -118,7 +124,10 @@ impl ReacherCycle {
                 dt: self.dt,
             })
             .map_err(|_| ReacherIdle::BadInput)?;
-        self.last_twist = out.twist;
+        self.last_twist = self
+            .config
+            .twist_rate
+            .apply(&self.last_twist, &out.twist, self.dt);
         self.last_acceleration = out.acceleration;
         Ok(out)
     }

@@ -8,7 +8,11 @@
 //! - **Phase changes**: the controller of the new phase needs a cycle to notice the change;
 //!   meanwhile the freshest twist of either controller is used (counted as a fallback), so the
 //!   command does not drop to zero at every hand-over.
-//! - **Missing or stale input** (no mission, mission complete, joint state or odometry older
+//! - **Twist rate limit and e_t cap** as in [`crate::on_the_move`]: the chosen twist moves from
+//!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`], and e_t is
+//!   capped at `max_position_error`. After the mission the reacher's twist (arm at its ready
+//!   pose) is the active one.
+//! - **Missing or stale input** (no mission, joint state or odometry older
 //!   than `max_state_age`, no fresh twist at all): an all-zero command, which the drivers ramp
 //!   to within their limits. A missing or stale base target is replaced by a zero target.
 
@@ -107,7 +111,8 @@ pub struct ResolverCycleOutput {
     pub twist: Twist,
     /// Where it came from.
     pub source: TwistSource,
-    /// e_t: the tool's distance to the current task's aim point, m (infinite when unknown).
+    /// The tool's distance to the current task's aim point, m (infinite when unknown; the QP's
+    /// e_t is this capped at `max_position_error`).
     pub tool_to_target: f64,
 }
 
@@ -117,14 +122,26 @@ pub struct ResolverCycle {
     config: OnTheMoveConfig,
     limits: ResolverCycleConfig,
     resolver: RedundancyResolver,
+    /// Control period, s.
+    dt: f64,
+    /// The last resolved (rate-limited) twist.
+    last_twist: Twist,
     fallbacks: u64,
     stops: u64,
 }
 
 impl ResolverCycle {
-    /// A resolver for `robot` with the controller `config` and staleness `limits`.
-    pub fn new(robot: Robot, config: OnTheMoveConfig, limits: ResolverCycleConfig) -> Self {
+    /// A resolver for `robot` with the controller `config` and staleness `limits`, run every
+    /// `dt` seconds.
+    pub fn new(
+        robot: Robot,
+        config: OnTheMoveConfig,
+        limits: ResolverCycleConfig,
+        dt: f64,
+    ) -> Self {
         Self {
+            dt,
+            last_twist: Twist::zeros(),
             resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
             robot,
             config,
@@ -168,9 +185,14 @@ impl ResolverCycle {
             .flatten()
             .filter(|s| self.usable(s, input.active_controller))
             .collect();
+        // After the mission the reacher holds the arm at its ready pose.
+        let phase = match mission.phase {
+            Phase::Final => Phase::Final,
+            Phase::Reach | Phase::Complete => Phase::Reach,
+        };
         if let Some(s) = usable
             .iter()
-            .find(|s| s.task_index == mission.task_index && s.phase == mission.phase)
+            .find(|s| s.task_index == mission.task_index && s.phase == phase)
         {
             return Some((s.twist, TwistSource::ActivePhase));
         }
@@ -183,6 +205,7 @@ impl ResolverCycle {
     /// The all-zero command.
     fn stop(&mut self, tool_to_target: f64) -> ResolverCycleOutput {
         self.stops += 1;
+        self.last_twist = Twist::zeros();
         ResolverCycleOutput {
             resolved: ResolverOutput {
                 base: BaseVelocity::default(),
@@ -203,8 +226,7 @@ impl ResolverCycle {
         let (Some(mission), Some(state)) = (input.mission, input.state) else {
             return self.stop(f64::INFINITY);
         };
-        if mission.is_complete()
-            || state.age_ns as f64 > max_state_age_ns
+        if state.age_ns as f64 > max_state_age_ns
             || state.arm_q.len() != self.robot.arm_dof()
             || state.arm_q.iter().any(|q| !q.is_finite())
         {
@@ -219,6 +241,11 @@ impl ResolverCycle {
         if source == TwistSource::Fallback {
             self.fallbacks += 1;
         }
+        let twist = self
+            .config
+            .twist_rate
+            .apply(&self.last_twist, &twist, self.dt);
+        self.last_twist = twist;
         let base_target = match input.base_target {
             Some((target, age_ns)) if age_ns as f64 * 1e-9 <= self.limits.max_twist_age => target,
             _ => BaseVelocity::default(),
@@ -228,7 +255,7 @@ impl ResolverCycle {
             &state.base,
             state.arm_q,
             twist,
-            tool_to_target,
+            tool_to_target.min(self.config.max_position_error),
             Some(base_target),
         );
         ResolverCycleOutput {

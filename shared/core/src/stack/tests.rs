@@ -37,18 +37,69 @@ fn view(task_index: usize, kind: TaskKind, phase: Phase) -> MissionView {
     }
 }
 
-/// The view of `mission` the supervisor would publish.
-fn view_of(mission: &Mission) -> MissionView {
+/// The report the supervisor would publish for `mission` (what it knows once complete is not
+/// used by the services).
+fn report_of(mission: &Mission) -> MissionReport {
     let task = mission.current_task().copied();
     let target = task.map_or(Vector3::zeros(), |t| t.position);
-    MissionView {
+    MissionReport {
         task_index: mission.task_index(),
         task_count: mission.tasks().len(),
         kind: task.map_or(TaskKind::Pick, |t| t.kind),
         phase: mission.phase(),
         target,
-        next_waypoint: mission.next_waypoint(&target),
+        next_waypoint: task.map(|_| mission.next_waypoint(&target)),
     }
+}
+
+#[test]
+fn latch_keeps_the_last_task_after_completion_and_fills_in_run_out_points() {
+    let mut latch = MissionLatch::new(2.0);
+    let mut report = MissionReport {
+        task_index: 0,
+        task_count: 2,
+        kind: TaskKind::Pick,
+        phase: Phase::Reach,
+        target: Vector3::new(2.0, 0.0, 0.45),
+        next_waypoint: None,
+    };
+    // A completed mission whose tasks this process never saw: nothing to act on.
+    let complete = MissionReport {
+        task_index: 2,
+        phase: Phase::Complete,
+        target: Vector3::zeros(),
+        ..report
+    };
+    assert_eq!(latch.update(&complete), None);
+    // No next waypoint for the first task: 2 m beyond the target along x.
+    let view = latch.update(&report).unwrap();
+    assert!((view.next_waypoint - Vector3::new(4.0, 0.0, 0.45)).norm() < 1e-12);
+    report.next_waypoint = Some(Vector3::new(4.0, 3.0, 0.35));
+    assert_eq!(
+        latch.update(&report).unwrap().next_waypoint,
+        Vector3::new(4.0, 3.0, 0.35)
+    );
+    // The last task, without a run-out point: along the direction from the previous target.
+    let place = MissionReport {
+        task_index: 1,
+        kind: TaskKind::Place,
+        target: Vector3::new(2.0, 3.0, 0.35),
+        next_waypoint: None,
+        ..report
+    };
+    let view = latch.update(&place).unwrap();
+    assert!((view.next_waypoint - Vector3::new(2.0, 5.0, 0.35)).norm() < 1e-12);
+    let done = latch.update(&complete).unwrap();
+    assert!(done.is_complete());
+    assert_eq!((done.task_index, done.base_task_index()), (2, 1));
+    assert_eq!((done.kind, done.target), (TaskKind::Place, place.target));
+    assert_eq!(done.current_kind(), None);
+    let empty = MissionReport {
+        task_count: 0,
+        task_index: 0,
+        ..report
+    };
+    assert_eq!(latch.update(&empty), None);
 }
 
 #[test]
@@ -111,7 +162,7 @@ fn place_aim_is_raised_to_the_release_point_and_the_gripper_rests_by_task() {
 }
 
 #[test]
-fn base_planner_stops_planning_when_the_mission_is_complete_and_refuses_nan() {
+fn base_planner_drives_for_the_last_task_after_completion_and_refuses_nan() {
     let robot = frankie();
     let mut planner = BasePlannerCycle::new(&robot, Default::default());
     let mission = view(0, TaskKind::Pick, Phase::Reach);
@@ -131,7 +182,9 @@ fn base_planner_stops_planning_when_the_mission_is_complete_and_refuses_nan() {
     let mut done = input;
     done.mission.task_index = 2;
     done.mission.phase = Phase::Complete;
-    assert!(planner.step(&done).is_none());
+    let out = planner.step(&done).expect("drives on after the mission");
+    assert_eq!(out.task_index, 1);
+    assert!(out.plan.command.v > 0.0);
     assert_eq!(planner.refused(), 1);
 }
 
@@ -212,11 +265,11 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
     let robot = frankie();
     let q = robot.config.ready_pose.clone();
     let limits = robot.limits();
-    let mut resolver = ResolverCycle::new(
-        robot,
-        OnTheMoveConfig::default(),
-        ResolverCycleConfig::default(),
-    );
+    // No rate limit here, so the chosen twist is resolved as it is.
+    let mut config = OnTheMoveConfig::default();
+    config.twist_rate.linear_acceleration = 1e9;
+    config.twist_rate.angular_acceleration = 1e9;
+    let mut resolver = ResolverCycle::new(robot, config, ResolverCycleConfig::default(), 0.005);
     let reach_twist = Twist::new(0.05, 0.0, 0.0, 0.0, 0.0, 0.0);
     let final_twist = Twist::new(0.0, 0.0, -0.05, 0.0, 0.0, 0.0);
     let mission = view(0, TaskKind::Pick, Phase::Final);
@@ -248,6 +301,16 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         );
     }
     assert!((out.tool_to_target - (robot_tool_distance(&q, &mission))).abs() < 1e-12);
+    // The twist rate limit applies to whatever is chosen.
+    let mut slow = ResolverCycle::new(
+        frankie(),
+        OnTheMoveConfig::default(),
+        ResolverCycleConfig::default(),
+        0.005,
+    );
+    let out = slow.step(&input);
+    let limit = OnTheMoveConfig::default().twist_rate.linear_acceleration * 0.005;
+    assert!((out.twist.norm() - limit).abs() < 1e-12, "{}", out.twist);
     // Another controller is active: its twist has not come yet, so the reach twist bridges.
     input.active_controller = Some(2);
     let out = resolver.step(&input);
@@ -268,9 +331,20 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
     input.final_twist.as_mut().unwrap().age_ns = MS;
     input.state.as_mut().unwrap().age_ns = 80 * MS;
     assert_eq!(resolver.step(&input).source, TwistSource::Stopped);
-    // So does a complete mission.
+    // After the mission the reacher's twist (for the task index past the last) is active.
     input.state.as_mut().unwrap().age_ns = MS;
-    input.mission.as_mut().unwrap().phase = Phase::Complete;
+    let mission = input.mission.as_mut().unwrap();
+    mission.phase = Phase::Complete;
+    mission.task_index = 2;
+    input.reach = Some(sample(reach_twist, 2, Phase::Reach, MS));
+    let out = resolver.step(&input);
+    assert_eq!(
+        (out.twist, out.source),
+        (reach_twist, TwistSource::ActivePhase)
+    );
+    assert_eq!(resolver.stops(), 2);
+    // No mission at all: stop.
+    input.mission = None;
     assert_eq!(resolver.step(&input).source, TwistSource::Stopped);
     assert_eq!(resolver.stops(), 3);
 }
@@ -282,8 +356,8 @@ fn robot_tool_distance(q: &[f64], mission: &MissionView) -> f64 {
 }
 
 /// The split services, run in lockstep with zero latency and a supervisor's mission, command
-/// exactly what the single-process controller commands, through the reach phase, the final
-/// phase and into the next task.
+/// exactly what the single-process controller commands, through both phases of a pick and a
+/// place and on after the mission.
 #[test]
 fn the_split_cycles_agree_with_the_single_process_controller() {
     let robot = frankie();
@@ -304,6 +378,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
     let start = Vector3::zeros();
     let mut whole = OnTheMove::new(robot.clone(), config.clone(), tasks.clone(), start);
     let mut mission = Mission::new(MissionConfig::default(), tasks, start);
+    let mut latch = MissionLatch::new(config.mission.run_out_distance);
     let mut selector = TargetSelector::default();
     let mut planner = BasePlannerCycle::new(&robot, config.base.clone());
     let mut reacher = ReacherCycle::new(robot.clone(), config.clone(), dt);
@@ -313,6 +388,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
         robot.clone(),
         config.clone(),
         ResolverCycleConfig::default(),
+        dt,
     );
 
     let mut base = BasePose::default();
@@ -323,7 +399,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
     for cycle in 0..2400u64 {
         let t = cycle as f64 * dt;
         let now_ns = cycle * 5 * MS;
-        let view = view_of(&mission);
+        let view = latch.update(&report_of(&mission)).expect("a mission");
         let target = selector.select(&view, now_ns, None);
         let expected = whole.step(&OnTheMoveInput {
             t,
@@ -341,7 +417,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
                 base,
                 target,
             })
-            .expect("a plan while the mission runs");
+            .expect("a plan");
         let tool_pose = robot.tool_pose(&base, &q);
         let fp = final_phase.step(&FinalPhaseCycleInput {
             mission: view,
@@ -375,6 +451,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
                 })
                 .expect("a reach twist");
             reach = Some(sample(out.twist, view.task_index, Phase::Reach, 0));
+            assert_eq!(out.mode, expected.reach_mode, "cycle {cycle}");
         }
         let out = resolver.step(&ResolverCycleInput {
             mission: Some(view),
@@ -418,9 +495,16 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
             GripperCommand::Close => (opening - 0.1 * dt).max(0.05),
         };
     }
-    assert!(
-        phases_seen.contains(&(0, Phase::Final)),
-        "the run must reach the final phase of the pick: {phases_seen:?}"
+    assert_eq!(
+        phases_seen,
+        vec![
+            (0, Phase::Reach),
+            (0, Phase::Final),
+            (1, Phase::Reach),
+            (1, Phase::Final),
+            (2, Phase::Complete)
+        ],
+        "the run must go through the whole mission and on after it"
     );
 }
 
@@ -465,12 +549,16 @@ fn perception_pairs_each_image_with_the_nearest_tool_pose_and_restarts_per_pick(
     cycle.record_tool(1_000 * MS, looking_down(1.0));
     cycle.record_tool(2_000 * MS, looking_down(0.0));
     // Captured at 1.9 s: paired with the pose at 2 s, so the cube is under x = 0.
-    let report = cycle.observe(&pick, &frame(&red, 1_900 * MS)).expect("a fix");
+    let report = cycle
+        .observe(&pick, &frame(&red, 1_900 * MS))
+        .expect("a fix");
     assert!(report.estimate.visible && report.estimate.valid);
     assert!(report.estimate.position.x.abs() < 0.01, "{report:?}");
     assert_eq!(report.image_stamp_ns, 1_900 * MS);
     // Out of view: the fix is held, with the stamp of the image it came from.
-    let held = cycle.observe(&pick, &frame(&grey, 1_950 * MS)).expect("held fix");
+    let held = cycle
+        .observe(&pick, &frame(&grey, 1_950 * MS))
+        .expect("held fix");
     assert!(!held.estimate.visible);
     assert_eq!(held.image_stamp_ns, 1_900 * MS);
     // A place publishes nothing; the next pick starts from scratch.
@@ -479,11 +567,17 @@ fn perception_pairs_each_image_with_the_nearest_tool_pose_and_restarts_per_pick(
     let mut next_pick = pick;
     next_pick.task_index = 2;
     next_pick.task_count = 4;
-    assert!(cycle.observe(&next_pick, &frame(&grey, 1_970 * MS)).is_none());
+    assert!(
+        cycle
+            .observe(&next_pick, &frame(&grey, 1_970 * MS))
+            .is_none()
+    );
     // Non-finite tool poses are not recorded.
     let mut nan_pose = looking_down(0.0);
     nan_pose.translation.vector.x = f64::NAN;
     cycle.record_tool(1_980 * MS, nan_pose);
-    let report = cycle.observe(&next_pick, &frame(&red, 1_980 * MS)).expect("a fix");
+    let report = cycle
+        .observe(&next_pick, &frame(&red, 1_980 * MS))
+        .expect("a fix");
     assert!(report.estimate.position.iter().all(|x| x.is_finite()));
 }
