@@ -382,8 +382,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
     let mut selector = TargetSelector::default();
     let mut planner = BasePlannerCycle::new(&robot, config.base.clone());
     let mut reacher = ReacherCycle::new(robot.clone(), config.clone(), dt);
-    let mut final_phase =
-        FinalPhaseCycle::new(VariantMode::FollowMission, config.final_phase.clone());
+    let mut final_phase = FinalPhaseCycle::new(VariantMode::FollowMission, config.final_phase);
     let mut resolver = ResolverCycle::new(
         robot.clone(),
         config.clone(),
