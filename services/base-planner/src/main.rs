@@ -33,7 +33,8 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
     let bus = Bus::open(PROCESS)?;
     let qos = Qos::default();
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
-    let mut target_out = Publisher::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
+    let mut target_out =
+        Publisher::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
     let mut plan_out = Publisher::<msgs::BasePlan>::new(&bus, services::BASE_PLAN, &qos)?;
     let mut planner = BasePlannerCycle::new(&setup.robot, setup.config.base.clone());
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(setup.rate_hz))?;

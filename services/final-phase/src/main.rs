@@ -37,22 +37,34 @@ struct Cli {
 fn main() {
     let cli = Cli::parse();
     let setup = exit_on_error(PROCESS, ServiceSetup::load(&cli.common));
-    let mode = cli.variant.map_or(VariantMode::FollowMission, VariantMode::Fixed);
+    let mode = cli
+        .variant
+        .map_or(VariantMode::FollowMission, VariantMode::Fixed);
     exit_on_error(PROCESS, run(&setup, mode, cli.controller_id));
 }
 
 /// Opens the ports and runs the loop until SIGTERM/SIGINT.
-fn run(setup: &ServiceSetup, mode: VariantMode, controller_id: u32) -> Result<(), motm_bus::BusError> {
+fn run(
+    setup: &ServiceSetup,
+    mode: VariantMode,
+    controller_id: u32,
+) -> Result<(), motm_bus::BusError> {
     let bus = Bus::open(PROCESS)?;
     let qos = Qos::default();
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
-    let mut gripper_state = Latest::<msgs::GripperState>::new(&bus, services::ARM_GRIPPER_STATE, &qos)?;
-    let mut twist_out = Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
-    let mut gripper_out = Publisher::<msgs::GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos)?;
+    let mut gripper_state =
+        Latest::<msgs::GripperState>::new(&bus, services::ARM_GRIPPER_STATE, &qos)?;
+    let mut twist_out =
+        Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
+    let mut gripper_out =
+        Publisher::<msgs::GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos)?;
     let mut cycle = FinalPhaseCycle::new(mode, setup.config.final_phase);
     let robot = &setup.robot;
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(setup.rate_hz))?;
-    eprintln!("{PROCESS}: running at {} Hz ({mode:?}, controller id {controller_id})", setup.rate_hz);
+    eprintln!(
+        "{PROCESS}: running at {} Hz ({mode:?}, controller id {controller_id})",
+        setup.rate_hz
+    );
     service.run_periodic(|ctx| {
         // A failed receive leaves the previous value; the bus counts invalid samples.
         let _ = inputs.update();
@@ -86,7 +98,10 @@ fn run(setup: &ServiceSetup, mode: VariantMode, controller_id: u32) -> Result<()
                 controller_id,
             ));
         }
-        if let Some(gripper) = out.gripper.filter(|_| out.control.is_none_or(|c| !c.input_rejected)) {
+        if let Some(gripper) = out
+            .gripper
+            .filter(|_| out.control.is_none_or(|c| !c.input_rejected))
+        {
             let _ = gripper_out.publish(convert::gripper_command(gripper, controller_id));
         }
         Flow::Continue

@@ -48,8 +48,10 @@ fn main() {
 fn run(setup: &ServiceSetup, history: usize) -> Result<(), motm_bus::BusError> {
     let bus = Bus::open(PROCESS)?;
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
-    let mut images = Subscriber::<msgs::CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large())?;
-    let mut target_out = Publisher::<msgs::TargetEstimate>::new(&bus, services::PERCEPTION_TARGET, &Qos::default())?;
+    let mut images =
+        Subscriber::<msgs::CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large())?;
+    let mut target_out =
+        Publisher::<msgs::TargetEstimate>::new(&bus, services::PERCEPTION_TARGET, &Qos::default())?;
     let calibration = setup.camera_calibration(&CameraConfig::default());
     let mut cycle = PerceptionCycle::new(PerceptionConfig::default(), calibration, history);
     let robot = &setup.robot;

@@ -7,7 +7,9 @@ use std::time::Instant;
 
 use clap::Parser;
 use motm_bus::{Bus, Flow, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
-use motm_core::stack::resolver::{MeasuredState, ResolverCycle, ResolverCycleConfig, ResolverCycleInput};
+use motm_core::stack::resolver::{
+    MeasuredState, ResolverCycle, ResolverCycleConfig, ResolverCycleInput,
+};
 use motm_msgs as msgs;
 use motm_msgs::services;
 use motm_wire::inputs::ControlInputs;
@@ -34,9 +36,15 @@ struct Cli {
 fn main() {
     let cli = Cli::parse();
     let setup = exit_on_error(PROCESS, ServiceSetup::load(&cli.common));
-    for (flag, value) in [("--max-twist-age", cli.max_twist_age), ("--max-state-age", cli.max_state_age)] {
+    for (flag, value) in [
+        ("--max-twist-age", cli.max_twist_age),
+        ("--max-state-age", cli.max_state_age),
+    ] {
         if !(value.is_finite() && value > 0.0) {
-            exit_on_error::<(), _>(PROCESS, Err(format!("{flag}: must be positive, got {value}")));
+            exit_on_error::<(), _>(
+                PROCESS,
+                Err(format!("{flag}: must be positive, got {value}")),
+            );
         }
     }
     let limits = ResolverCycleConfig {
@@ -52,13 +60,23 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
     let qos = Qos::default();
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
     let mut reach = Latest::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
-    let mut final_twist = Latest::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
-    let mut active = Latest::<msgs::ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)?;
-    let mut base_target = Latest::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
-    let mut arm_out = Publisher::<msgs::ArmVelocityCommand>::new(&bus, services::ARM_VELOCITY_COMMAND, &qos)?;
-    let mut base_out = Publisher::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_COMMAND, &qos)?;
+    let mut final_twist =
+        Latest::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
+    let mut active =
+        Latest::<msgs::ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)?;
+    let mut base_target =
+        Latest::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
+    let mut arm_out =
+        Publisher::<msgs::ArmVelocityCommand>::new(&bus, services::ARM_VELOCITY_COMMAND, &qos)?;
+    let mut base_out =
+        Publisher::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_COMMAND, &qos)?;
     let mut status_out = Publisher::<msgs::QpStatus>::new(&bus, services::CONTROL_QP_STATUS, &qos)?;
-    let mut cycle = ResolverCycle::new(setup.robot.clone(), setup.config.clone(), limits, setup.dt());
+    let mut cycle = ResolverCycle::new(
+        setup.robot.clone(),
+        setup.config.clone(),
+        limits,
+        setup.dt(),
+    );
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(setup.rate_hz))?;
     eprintln!("{PROCESS}: running at {} Hz", setup.rate_hz);
     service.run_periodic(|ctx| {
@@ -78,13 +96,20 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
                 arm_q: m.arm_q,
                 age_ns: now.saturating_sub(m.stamp_ns),
             }),
-            target: snapshot.target.unwrap_or_else(|| motm_core::TargetEstimate::fixed(Default::default())),
+            target: snapshot
+                .target
+                .unwrap_or_else(|| motm_core::TargetEstimate::fixed(Default::default())),
             reach: reach.get().and_then(|m| convert::twist_sample(m, now)),
-            final_twist: final_twist.get().and_then(|m| convert::twist_sample(m, now)),
-            active_controller: active.get().map(|m| m.controller_id),
-            base_target: base_target
+            final_twist: final_twist
                 .get()
-                .map(|m| (convert::base_velocity_of(m), now.saturating_sub(m.header.stamp_ns))),
+                .and_then(|m| convert::twist_sample(m, now)),
+            active_controller: active.get().map(|m| m.controller_id),
+            base_target: base_target.get().map(|m| {
+                (
+                    convert::base_velocity_of(m),
+                    now.saturating_sub(m.header.stamp_ns),
+                )
+            }),
         });
         let solve_ns = started.elapsed().as_nanos() as u64;
         // A failed publish shows as a gap that the drivers and the watchdog act on.

@@ -7,11 +7,15 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
 
-use motm_bus::{Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Subscriber, remove_domain, shared_memory_entries};
+use motm_bus::{
+    Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Subscriber, remove_domain,
+    shared_memory_entries,
+};
 use motm_core::Robot;
 use motm_msgs::{
-    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, Heartbeat, JointState, Message, MissionState,
-    QpOutcome, QpStatus, TaskKindCode, TaskPhase, TaskProgressCode, TwistCommand, services,
+    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, Heartbeat, JointState, Message,
+    MissionState, QpOutcome, QpStatus, TaskKindCode, TaskPhase, TaskProgressCode, TwistCommand,
+    services,
 };
 
 /// Longest wait for anything (generous: the machine is shared and noisy).
@@ -188,40 +192,71 @@ fn qp_resolver_process_turns_a_twist_into_limited_commands_and_drops_nan_input()
 
         // A resolved command: moving, finite, within every velocity limit, from a solved QP.
         let mut resolved = 0;
-        feed_until(&mut feeder, &mut commands, true, "resolved commands", |c, commands| {
-            let base = [c.base.0, c.base.1];
-            assert!(c.arm.iter().chain(&base).all(|v| v.is_finite()), "non-finite command");
-            assert_eq!(c.arm.len(), 7);
-            // Full joint order: base yaw, base forward, arm.
-            let full = [c.base.1, c.base.0].into_iter().chain(c.arm.iter().copied());
-            for (v, limit) in full.zip(&limits) {
-                assert!(v.abs() <= limit.velocity + 1e-9, "{v} beyond {}", limit.velocity);
-            }
-            let moving = c.arm.iter().any(|v| v.abs() > 1e-4) && c.base.0 > 0.1;
-            let solved = commands.status.get().is_some_and(|s| {
-                matches!(s.outcome.try_into(), Ok(QpOutcome::Solved | QpOutcome::AlmostSolved))
-            });
-            if moving && solved {
-                resolved += 1;
-            }
-            resolved >= 10
-        });
+        feed_until(
+            &mut feeder,
+            &mut commands,
+            true,
+            "resolved commands",
+            |c, commands| {
+                let base = [c.base.0, c.base.1];
+                assert!(
+                    c.arm.iter().chain(&base).all(|v| v.is_finite()),
+                    "non-finite command"
+                );
+                assert_eq!(c.arm.len(), 7);
+                // Full joint order: base yaw, base forward, arm.
+                let full = [c.base.1, c.base.0]
+                    .into_iter()
+                    .chain(c.arm.iter().copied());
+                for (v, limit) in full.zip(&limits) {
+                    assert!(
+                        v.abs() <= limit.velocity + 1e-9,
+                        "{v} beyond {}",
+                        limit.velocity
+                    );
+                }
+                let moving = c.arm.iter().any(|v| v.abs() > 1e-4) && c.base.0 > 0.1;
+                let solved = commands.status.get().is_some_and(|s| {
+                    matches!(
+                        s.outcome.try_into(),
+                        Ok(QpOutcome::Solved | QpOutcome::AlmostSolved)
+                    )
+                });
+                if moving && solved {
+                    resolved += 1;
+                }
+                resolved >= 10
+            },
+        );
 
         // A NaN joint state is dropped and counted (the heartbeat reports it); commands stay
         // finite and keep coming from the last valid state.
         let mut bad = READY;
         bad[2] = f64::NAN;
         feeder.joints.publish(joint_state(bad)).unwrap();
-        feed_until(&mut feeder, &mut commands, true, "the rejection in the heartbeat", |c, commands| {
-            assert!(c.arm.iter().all(|v| v.is_finite()));
-            commands.heartbeat.update().unwrap();
-            commands.heartbeat.get().is_some_and(|h| h.rejected_messages >= 1)
-        });
+        feed_until(
+            &mut feeder,
+            &mut commands,
+            true,
+            "the rejection in the heartbeat",
+            |c, commands| {
+                assert!(c.arm.iter().all(|v| v.is_finite()));
+                commands.heartbeat.update().unwrap();
+                commands
+                    .heartbeat
+                    .get()
+                    .is_some_and(|h| h.rejected_messages >= 1)
+            },
+        );
 
         // Without a twist the command goes to zero once the last one is stale.
-        feed_until(&mut feeder, &mut commands, false, "a stop on a stale twist", |c, _| {
-            c.arm.iter().all(|v| *v == 0.0) && c.base == (0.0, 0.0)
-        });
+        feed_until(
+            &mut feeder,
+            &mut commands,
+            false,
+            "a stop on a stale twist",
+            |c, _| c.arm.iter().all(|v| *v == 0.0) && c.base == (0.0, 0.0),
+        );
 
         let status = service.terminate();
         assert!(status.success(), "qp-resolver exited with {status}");

@@ -38,9 +38,12 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
     let qos = Qos::default();
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
     let mut plan = Latest::<msgs::BasePlan>::new(&bus, services::BASE_PLAN, &qos)?;
-    let mut base_target = Latest::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
-    let mut final_twists = Subscriber::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
-    let mut twist_out = Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
+    let mut base_target =
+        Latest::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
+    let mut final_twists =
+        Subscriber::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
+    let mut twist_out =
+        Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
     let mut reacher = ReacherCycle::new(setup.robot.clone(), setup.config.clone(), setup.dt());
     let controller_id = u32::from(ControllerVariant::Reacher);
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(setup.rate_hz))?;

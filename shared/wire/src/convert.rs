@@ -240,10 +240,17 @@ mod tests {
         let m = twist_command(&twist, 3, Phase::Final, TaskProgress::Done, 7);
         valid(&m);
         let s = twist_sample(&m, m.header.stamp_ns + 5).unwrap();
-        assert_eq!((s.twist, s.task_index, s.phase, s.controller_id, s.age_ns), (twist, 3, Phase::Final, 7, 5));
+        assert_eq!(
+            (s.twist, s.task_index, s.phase, s.controller_id, s.age_ns),
+            (twist, 3, Phase::Final, 7, 5)
+        );
         assert_eq!(progress(&m), Some(TaskProgress::Done));
 
-        let pose = BasePose { x: 1.0, y: -2.0, yaw: 7.0 };
+        let pose = BasePose {
+            x: 1.0,
+            y: -2.0,
+            yaw: 7.0,
+        };
         let out = BasePlannerOutput {
             task_index: 1,
             plan: BaseControllerOutput {
@@ -266,9 +273,18 @@ mod tests {
         let arm = arm_command(&[0.1, 0.2, 0.3]);
         valid(&arm);
         assert_eq!(arm.joint_count, 3);
-        let base = base_command(&BaseVelocity { v: 0.2, omega: -0.1 });
+        let base = base_command(&BaseVelocity {
+            v: 0.2,
+            omega: -0.1,
+        });
         valid(&base);
-        assert_eq!(base_velocity_of(&base), BaseVelocity { v: 0.2, omega: -0.1 });
+        assert_eq!(
+            base_velocity_of(&base),
+            BaseVelocity {
+                v: 0.2,
+                omega: -0.1
+            }
+        );
         let gripper = gripper_command(GripperCommand::Close, 4);
         valid(&gripper);
         assert_eq!(gripper.action(), Some(msgs::GripperAction::Close));
@@ -285,9 +301,15 @@ mod tests {
         m.next_target = [6.0, 0.0, 0.35];
         valid(&m);
         let r = mission_report(&m).unwrap();
-        assert_eq!((r.task_index, r.task_count, r.kind, r.phase), (1, 2, TaskKind::Place, Phase::Final));
+        assert_eq!(
+            (r.task_index, r.task_count, r.kind, r.phase),
+            (1, 2, TaskKind::Place, Phase::Final)
+        );
         assert_eq!(r.next_waypoint, None);
         m.has_next = 1;
-        assert_eq!(mission_report(&m).unwrap().next_waypoint, Some(Vector3::new(6.0, 0.0, 0.35)));
+        assert_eq!(
+            mission_report(&m).unwrap().next_waypoint,
+            Some(Vector3::new(6.0, 0.0, 0.35))
+        );
     }
 }

@@ -71,7 +71,10 @@ impl ServiceSetup {
     /// Loads what `args` name; the error names the file or flag at fault.
     pub fn load(args: &ServiceArgs) -> Result<Self, String> {
         if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 10_000.0) {
-            return Err(format!("--rate: must be in (0, 10000] Hz, got {}", args.rate));
+            return Err(format!(
+                "--rate: must be in (0, 10000] Hz, got {}",
+                args.rate
+            ));
         }
         let config_dir = resolve_config_dir(args.config_dir.as_deref());
         let mut scenario = match &args.scenario {
