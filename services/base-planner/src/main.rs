@@ -8,7 +8,7 @@ use motm_core::stack::base_planner::{BasePlannerCycle, BasePlannerInput};
 use motm_msgs as msgs;
 use motm_msgs::services;
 use motm_wire::inputs::ControlInputs;
-use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error};
+use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "base-planner";
@@ -62,11 +62,7 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
         }
         Flow::Continue
     })?;
-    eprintln!(
-        "{PROCESS}: stopped after {} cycles ({} refused, {} rejected messages)",
-        service.stats().cycles(),
-        planner.refused(),
-        bus.rejected_messages()
-    );
+    let details = format!("{} refused cycles", planner.refused());
+    report_exit(PROCESS, &mut service, &bus, &details);
     Ok(())
 }

@@ -14,7 +14,7 @@ use motm_core::stack::seconds;
 use motm_msgs as msgs;
 use motm_msgs::services;
 use motm_wire::inputs::ControlInputs;
-use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error};
+use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "final-phase";
@@ -106,11 +106,7 @@ fn run(
         }
         Flow::Continue
     })?;
-    eprintln!(
-        "{PROCESS}: stopped after {} cycles ({} refused, {} rejected messages)",
-        service.stats().cycles(),
-        cycle.rejected(),
-        bus.rejected_messages()
-    );
+    let details = format!("{} refused cycles", cycle.rejected());
+    report_exit(PROCESS, &mut service, &bus, &details);
     Ok(())
 }

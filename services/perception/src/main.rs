@@ -18,7 +18,7 @@ use motm_core::stack::perception::{CameraFrame, PerceptionCycle};
 use motm_msgs as msgs;
 use motm_msgs::services;
 use motm_wire::inputs::ControlInputs;
-use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error};
+use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "perception";
@@ -94,10 +94,7 @@ fn run(setup: &ServiceSetup, history: usize) -> Result<(), motm_bus::BusError> {
         }
         Flow::Continue
     })?;
-    eprintln!(
-        "{PROCESS}: stopped after {} cycles ({published} estimates, {} rejected messages)",
-        service.stats().cycles(),
-        bus.rejected_messages()
-    );
+    let details = format!("{published} estimates");
+    report_exit(PROCESS, &mut service, &bus, &details);
     Ok(())
 }

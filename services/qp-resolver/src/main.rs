@@ -13,7 +13,7 @@ use motm_core::stack::resolver::{
 use motm_msgs as msgs;
 use motm_msgs::services;
 use motm_wire::inputs::ControlInputs;
-use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error};
+use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "qp-resolver";
@@ -118,12 +118,11 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
         let _ = status_out.publish(convert::qp_status(&out.resolved, solve_ns));
         Flow::Continue
     })?;
-    eprintln!(
-        "{PROCESS}: stopped after {} cycles ({} stopped, {} hand-over fallbacks, {} rejected messages)",
-        service.stats().cycles(),
+    let details = format!(
+        "{} stopped cycles, {} hand-over fallbacks",
         cycle.stops(),
-        cycle.fallbacks(),
-        bus.rejected_messages()
+        cycle.fallbacks()
     );
+    report_exit(PROCESS, &mut service, &bus, &details);
     Ok(())
 }

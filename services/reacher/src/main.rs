@@ -12,7 +12,7 @@ use motm_core::{BaseVelocity, TaskProgress, Twist};
 use motm_msgs as msgs;
 use motm_msgs::{ControllerVariant, services};
 use motm_wire::inputs::ControlInputs;
-use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error};
+use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "reacher";
@@ -89,10 +89,7 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
         }
         Flow::Continue
     })?;
-    eprintln!(
-        "{PROCESS}: stopped after {} cycles ({} rejected messages)",
-        service.stats().cycles(),
-        bus.rejected_messages()
-    );
+    let details = String::new();
+    report_exit(PROCESS, &mut service, &bus, &details);
     Ok(())
 }

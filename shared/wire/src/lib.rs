@@ -9,4 +9,4 @@ pub mod convert;
 pub mod inputs;
 pub mod setup;
 
-pub use setup::{ServiceArgs, ServiceSetup, exit_on_error};
+pub use setup::{ServiceArgs, ServiceSetup, exit_on_error, report_exit};

@@ -137,3 +137,22 @@ pub fn exit_on_error<T, E: std::fmt::Display>(process: &str, result: Result<T, E
         }
     }
 }
+
+/// Prints the closing line of a service: cycles, deadline misses, p99 and longest cycle time,
+/// rejected messages, and `details` from the service itself.
+pub fn report_exit(
+    process: &str,
+    service: &mut motm_bus::ServiceLoop<'_>,
+    bus: &motm_bus::Bus,
+    details: &str,
+) {
+    let stats = service.stats_mut();
+    let p99_us = stats.percentile_ns(99.0) / 1000;
+    eprintln!(
+        "{process}: stopped after {} cycles, {} deadline misses, p99 cycle {p99_us} us, max {} us, {} rejected messages; {details}",
+        stats.cycles(),
+        stats.deadline_misses(),
+        stats.max_cycle_ns() / 1000,
+        bus.rejected_messages()
+    );
+}

@@ -75,7 +75,7 @@ struct Stack {
 }
 
 impl Stack {
-    fn start(ipc: &IpcConfig) -> Self {
+    fn start(ipc: &IpcConfig, rate: &str) -> Self {
         let dir = binaries();
         let children = SERVICES
             .iter()
@@ -83,7 +83,7 @@ impl Stack {
                 let child = Command::new(dir.join(name))
                     .arg("--config-dir")
                     .arg(config_dir())
-                    .args(["--rate", "200", "--base-speed", "0.3"])
+                    .args(["--rate", rate, "--base-speed", "0.3"])
                     .env(PREFIX_ENV, &ipc.prefix)
                     .spawn()
                     .unwrap_or_else(|e| panic!("{name} starts: {e}"));
@@ -198,6 +198,16 @@ impl Plant {
 
 #[test]
 fn the_control_services_carry_a_pick_and_place_through_over_iceoryx2() {
+    run_pick_and_place("200");
+}
+
+#[test]
+fn the_control_services_also_work_at_1_khz() {
+    run_pick_and_place("1000");
+}
+
+/// Runs the services at `rate` Hz through a pick and place; see the file's doc.
+fn run_pick_and_place(rate: &str) {
     let robot = Robot::load(&config_dir(), "frankie").unwrap();
     let limits = robot.limits();
     let tasks = vec![
@@ -225,7 +235,7 @@ fn the_control_services_carry_a_pick_and_place_through_over_iceoryx2() {
         closing: false,
     };
     let ipc = IpcConfig {
-        prefix: format!("motmt{}_chain_", std::process::id()),
+        prefix: format!("motmt{}_chain{rate}_", std::process::id()),
     };
     let mut phases = vec![(0, Phase::Reach)];
     {
@@ -249,7 +259,7 @@ fn the_control_services_carry_a_pick_and_place_through_over_iceoryx2() {
             Latest::<GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos).unwrap();
         let mut final_in =
             Latest::<TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos).unwrap();
-        let mut stack = Stack::start(&ipc);
+        let mut stack = Stack::start(&ipc, rate);
 
         let start = Instant::now();
         let mut last = Instant::now();
