@@ -32,7 +32,8 @@ fn main() {
 fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
     let bus = Bus::open(PROCESS)?;
     let qos = Qos::default();
-    let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
+    // The base controller needs no joint state.
+    let mut inputs = ControlInputs::open_with(&bus, setup.config.mission.run_out_distance, false)?;
     let mut target_out =
         Publisher::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
     let mut plan_out = Publisher::<msgs::BasePlan>::new(&bus, services::BASE_PLAN, &qos)?;

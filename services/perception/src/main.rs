@@ -1,11 +1,12 @@
-//! `perception`: records the tool pose the robot believes it has (joint state at the odometry
-//! pose) at each joint state, and for each new palm-camera image of the current pick pairs the
+//! `perception`: records the tool pose the robot believes it has (each joint state at the
+//! latest odometry pose), and for each new palm-camera image of the current pick pairs the
 //! image with the pose nearest its capture stamp, runs cube perception and publishes the
 //! estimate (with the stamp of the image it came from). The logic is
 //! [`motm_core::stack::perception`].
 //!
 //! Assumption: camera image stamps are exposure times on the same monotonic clock as the
-//! joint-state stamps. The loop's deadline is one camera frame (33 ms), since a cycle with an
+//! joint-state stamps. Run it at the control rate (not the camera rate): each cycle adds the
+//! queued joint states to the tool-pose history, and an image waits at most one cycle. The loop's deadline is one camera frame (33 ms), since a cycle with an
 //! image takes longer than one without.
 
 use std::time::Duration;
@@ -47,7 +48,12 @@ fn main() {
 /// Opens the ports and runs the loop until SIGTERM/SIGINT.
 fn run(setup: &ServiceSetup, history: usize) -> Result<(), motm_bus::BusError> {
     let bus = Bus::open(PROCESS)?;
-    let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
+    // Joint states are drained from a queue (up to the service's buffer per cycle), not just
+    // the latest, so the tool-pose history is denser than the loop rate.
+    let mut inputs = ControlInputs::open_with(&bus, setup.config.mission.run_out_distance, false)?;
+    let joint_qos = Qos::default();
+    let mut joints =
+        Subscriber::<msgs::JointState>::new(&bus, services::ARM_JOINT_STATE, &joint_qos)?;
     let mut images =
         Subscriber::<msgs::CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large())?;
     let mut target_out =
@@ -55,7 +61,6 @@ fn run(setup: &ServiceSetup, history: usize) -> Result<(), motm_bus::BusError> {
     let calibration = setup.camera_calibration(&CameraConfig::default());
     let mut cycle = PerceptionCycle::new(PerceptionConfig::default(), calibration, history);
     let robot = &setup.robot;
-    let mut last_pose_stamp = None;
     let mut published = 0u64;
     let config = LoopConfig {
         deadline: Some(DEADLINE.max(setup.period())),
@@ -67,16 +72,16 @@ fn run(setup: &ServiceSetup, history: usize) -> Result<(), motm_bus::BusError> {
         // A failed receive leaves the previous value; the bus counts invalid samples.
         let _ = inputs.update();
         let image = images.latest().ok().flatten();
-        let stamp = inputs.joint_state().map(|j| j.header.stamp_ns);
-        let snapshot = inputs.snapshot(ctx.now_ns);
-        if let Some(measured) = snapshot.measured
-            && measured.arm_q.len() == robot.arm_dof()
-            && stamp != last_pose_stamp
-        {
-            last_pose_stamp = stamp;
-            let pose = robot.tool_pose(&measured.base, measured.arm_q);
-            cycle.record_tool(stamp.unwrap_or(measured.stamp_ns), pose);
+        while let Ok(Some(state)) = joints.receive() {
+            let arm_q = convert::arm_q(&state);
+            if let Some(odometry) = inputs.odometry()
+                && arm_q.len() == robot.arm_dof()
+            {
+                let pose = robot.tool_pose(&convert::base_pose(odometry), arm_q);
+                cycle.record_tool(state.header.stamp_ns, pose);
+            }
         }
+        let snapshot = inputs.snapshot(ctx.now_ns);
         let (Some(mission), Some(image)) = (snapshot.mission, image) else {
             return Flow::Continue;
         };

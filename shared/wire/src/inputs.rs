@@ -13,7 +13,7 @@ use crate::convert;
 /// Subscriptions to mission, joint state, odometry and perception target.
 pub struct ControlInputs {
     mission: Latest<msgs::MissionState>,
-    joints: Latest<msgs::JointState>,
+    joints: Option<Latest<msgs::JointState>>,
     odometry: Latest<msgs::BaseOdometry>,
     target: Latest<msgs::TargetEstimate>,
     latch: MissionLatch,
@@ -27,7 +27,7 @@ pub struct Measured<'a> {
     pub base: BasePose,
     /// Measured base velocity (odometry).
     pub base_velocity: BaseVelocity,
-    /// Arm joint positions.
+    /// Arm joint positions (empty when joint states are not read).
     pub arm_q: &'a [f64],
     /// Monotonic stamp of the older of joint state and odometry, ns.
     pub stamp_ns: u64,
@@ -38,20 +38,34 @@ pub struct Measured<'a> {
 pub struct Snapshot<'a> {
     /// The mission, once known.
     pub mission: Option<MissionView>,
-    /// The measured state, once both joint state and odometry have arrived.
+    /// The measured state, once odometry and (when read) joint state have arrived.
     pub measured: Option<Measured<'a>>,
     /// Target of the current task (with a mission).
     pub target: Option<TargetEstimate>,
 }
 
 impl ControlInputs {
-    /// Subscribes on `bus`; a missing run-out point is placed `run_out_distance` beyond the
-    /// last target.
+    /// Subscribes on `bus` to all four inputs; a missing run-out point is placed
+    /// `run_out_distance` beyond the last target.
     pub fn open(bus: &Bus, run_out_distance: f64) -> Result<Self, BusError> {
+        Self::open_with(bus, run_out_distance, true)
+    }
+
+    /// Subscribes on `bus`, to joint states only when `with_joints` (each subscriber takes one
+    /// of a service's limited subscriber slots).
+    pub fn open_with(
+        bus: &Bus,
+        run_out_distance: f64,
+        with_joints: bool,
+    ) -> Result<Self, BusError> {
         let qos = Qos::default();
         Ok(Self {
             mission: Latest::new(bus, services::MISSION_STATE, &qos)?,
-            joints: Latest::new(bus, services::ARM_JOINT_STATE, &qos)?,
+            joints: if with_joints {
+                Some(Latest::new(bus, services::ARM_JOINT_STATE, &qos)?)
+            } else {
+                None
+            },
             odometry: Latest::new(bus, services::BASE_ODOMETRY, &qos)?,
             target: Latest::new(bus, services::PERCEPTION_TARGET, &qos)?,
             latch: MissionLatch::new(run_out_distance),
@@ -62,15 +76,17 @@ impl ControlInputs {
     /// Takes in every sample that arrived (invalid ones are dropped and counted by the bus).
     pub fn update(&mut self) -> Result<(), BusError> {
         self.mission.update()?;
-        self.joints.update()?;
+        if let Some(joints) = &mut self.joints {
+            joints.update()?;
+        }
         self.odometry.update()?;
         self.target.update()?;
         Ok(())
     }
 
-    /// The latest joint state message.
-    pub fn joint_state(&self) -> Option<&msgs::JointState> {
-        self.joints.get()
+    /// The latest odometry message.
+    pub fn odometry(&self) -> Option<&msgs::BaseOdometry> {
+        self.odometry.get()
     }
 
     /// The inputs at monotonic time `now_ns`.
@@ -82,12 +98,18 @@ impl ControlInputs {
             .and_then(|report| self.latch.update(&report));
         let perceived = self.target.get().map(convert::perceived);
         let target = mission.map(|m| self.selector.select(&m, now_ns, perceived.as_ref()));
-        let measured = match (self.joints.get(), self.odometry.get()) {
+        let joints = match &self.joints {
+            Some(latest) => latest.get().map(Some),
+            None => Some(None),
+        };
+        let measured = match (joints, self.odometry.get()) {
             (Some(joints), Some(odometry)) => Some(Measured {
                 base: convert::base_pose(odometry),
                 base_velocity: convert::base_velocity(odometry),
-                arm_q: convert::arm_q(joints),
-                stamp_ns: joints.header.stamp_ns.min(odometry.header.stamp_ns),
+                arm_q: joints.map_or(&[][..], convert::arm_q),
+                stamp_ns: joints.map_or(odometry.header.stamp_ns, |j| {
+                    j.header.stamp_ns.min(odometry.header.stamp_ns)
+                }),
             }),
             _ => None,
         };
