@@ -208,7 +208,8 @@ pub fn gripper_command(command: GripperCommand, controller_id: u32) -> msgs::Gri
     m
 }
 
-/// The QP status message of one resolve that took `solve_time_ns`.
+/// The QP status message of one resolve that took `solve_time_ns` (`objective` stays zero: the
+/// resolver does not report it).
 pub fn qp_status(out: &ResolverOutput, solve_time_ns: u64) -> msgs::QpStatus {
     let mut m = msgs::QpStatus::zeroed();
     m.outcome = match out.status {
