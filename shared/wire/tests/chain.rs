@@ -2,7 +2,8 @@
 //! process standing in for the supervisor (the mission) and for the drivers (a kinematic
 //! robot that integrates the commands in real time). The services must carry a pick and a
 //! place of static targets through to the end of the mission, with finite commands within
-//! the joint velocity limits, and leave no process and no shared memory behind.
+//! the joint velocity limits, take the single-process controller's time within 5 %, and leave
+//! no process and no shared memory behind.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
@@ -14,9 +15,9 @@ use motm_bus::{
 };
 use motm_core::kinematics::BasePose;
 use motm_core::mission::{Mission, MissionConfig, MissionTask, Phase, TaskKind};
-use motm_core::on_the_move::OnTheMoveConfig;
+use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput};
 use motm_core::stack::reach_aim;
-use motm_core::{Robot, TargetEstimate, TaskProgress, wrap_angle};
+use motm_core::{BaseVelocity, Robot, TargetEstimate, TaskProgress, wrap_angle};
 use motm_msgs::{
     ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, GripperAction, GripperCommand,
     GripperState, JointState, Message, MissionState, TaskKindCode, TwistCommand, services,
@@ -196,6 +197,76 @@ impl Plant {
     }
 }
 
+/// The pick and place of these tests.
+fn tasks() -> Vec<MissionTask> {
+    vec![
+        MissionTask {
+            kind: TaskKind::Pick,
+            item: 0,
+            position: Vector3::new(2.0, 0.3, 0.45),
+        },
+        MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: Vector3::new(4.0, 0.3, 0.35),
+        },
+    ]
+}
+
+/// A plant at rest at the start, with `tasks`' mission.
+fn plant(robot: Robot) -> Plant {
+    Plant {
+        q: robot.config.ready_pose.clone(),
+        qd: vec![0.0; robot.arm_dof()],
+        robot,
+        config: OnTheMoveConfig::default(),
+        mission: Mission::new(MissionConfig::default(), tasks(), Vector3::zeros()),
+        base: BasePose::default(),
+        v: 0.0,
+        omega: 0.0,
+        opening: 0.08,
+        closing: false,
+    }
+}
+
+/// Time the single-process controller needs for the mission on the same plant, s.
+fn single_process_mission_time(robot: &Robot) -> f64 {
+    let mut plant = plant(robot.clone());
+    let mut controller = OnTheMove::new(
+        robot.clone(),
+        plant.config.clone(),
+        tasks(),
+        Vector3::zeros(),
+    );
+    let dt = DT.as_secs_f64();
+    let mut t = 0.0;
+    while controller.mission().phase() != Phase::Complete {
+        assert!(
+            t < MISSION_TIMEOUT.as_secs_f64(),
+            "single-process mission not complete"
+        );
+        let task = controller.mission().current_task().copied().unwrap();
+        let out = controller.step(&OnTheMoveInput {
+            t,
+            dt,
+            base: plant.base,
+            base_velocity: BaseVelocity {
+                v: plant.v,
+                omega: plant.omega,
+            },
+            arm_q: &plant.q,
+            gripper_opening: plant.opening,
+            target: TargetEstimate::fixed(task.position),
+        });
+        (plant.v, plant.omega) = (out.base.v, out.base.omega);
+        plant.qd.copy_from_slice(&out.arm_qd);
+        plant.closing = out.gripper == motm_core::GripperCommand::Close;
+        plant.integrate(dt);
+        t += dt;
+    }
+    t
+}
+
 #[test]
 fn the_control_services_carry_a_pick_and_place_through_over_iceoryx2() {
     run_pick_and_place("200");
@@ -210,30 +281,8 @@ fn the_control_services_also_work_at_1_khz() {
 fn run_pick_and_place(rate: &str) {
     let robot = Robot::load(&config_dir(), "frankie").unwrap();
     let limits = robot.limits();
-    let tasks = vec![
-        MissionTask {
-            kind: TaskKind::Pick,
-            item: 0,
-            position: Vector3::new(2.0, 0.3, 0.45),
-        },
-        MissionTask {
-            kind: TaskKind::Place,
-            item: 0,
-            position: Vector3::new(4.0, 0.3, 0.35),
-        },
-    ];
-    let mut plant = Plant {
-        q: robot.config.ready_pose.clone(),
-        qd: vec![0.0; robot.arm_dof()],
-        robot,
-        config: OnTheMoveConfig::default(),
-        mission: Mission::new(MissionConfig::default(), tasks, Vector3::zeros()),
-        base: BasePose::default(),
-        v: 0.0,
-        omega: 0.0,
-        opening: 0.08,
-        closing: false,
-    };
+    let reference = single_process_mission_time(&robot);
+    let mut plant = plant(robot);
     let ipc = IpcConfig {
         prefix: format!("motmt{}_chain{rate}_", std::process::id()),
     };
@@ -262,6 +311,7 @@ fn run_pick_and_place(rate: &str) {
         let mut stack = Stack::start(&ipc, rate);
 
         let start = Instant::now();
+        let mut mission_time = 0.0;
         let mut last = Instant::now();
         let mut commands = 0u64;
         let mut moving_commands = 0u64;
@@ -273,7 +323,12 @@ fn run_pick_and_place(rate: &str) {
             );
             std::thread::sleep(DT);
             let now = Instant::now();
-            plant.integrate(now.duration_since(last).as_secs_f64().min(0.05));
+            let dt = now.duration_since(last).as_secs_f64().min(0.05);
+            plant.integrate(dt);
+            // The mission clock starts with the first command, as the single process's does.
+            if commands > 0 {
+                mission_time += dt;
+            }
             last = now;
             while let Some(arm) = arm_in.receive().unwrap() {
                 let qd = &arm.velocity[..arm.joint_count as usize];
@@ -333,10 +388,13 @@ fn run_pick_and_place(rate: &str) {
             stack.assert_alive();
         }
         eprintln!(
-            "mission complete after {:.1} s, {commands} arm commands, base at ({:.2}, {:.2}); phases {phases:?}",
-            start.elapsed().as_secs_f64(),
-            plant.base.x,
-            plant.base.y
+            "mission complete after {mission_time:.2} s (single process: {reference:.2} s), {commands} arm commands, base at ({:.2}, {:.2}); phases {phases:?}",
+            plant.base.x, plant.base.y
+        );
+        // The equivalence criterion between the deployed and the in-process form.
+        assert!(
+            (mission_time - reference).abs() <= 0.05 * reference,
+            "mission took {mission_time:.2} s over processes, {reference:.2} s in one"
         );
         assert!(moving_commands > 100, "the base must have been driven");
         stack.terminate();
