@@ -702,12 +702,24 @@ pub struct QpStatus {
     pub objective: f64,
     /// Norm of the task slack at the solution.
     pub slack_norm: f64,
+    /// Capture stamp of the camera image behind the target estimate this command used, ns (0
+    /// when the target was not a perception estimate): the end-to-end latency of the command
+    /// is `header.stamp_ns - image_stamp_ns`.
+    pub image_stamp_ns: u64,
 }
 
 message!(QpStatus, |m, c| {
     c.code::<QpOutcome>("outcome", m.outcome)?;
     c.in_range("objective", m.objective, f64::MIN, f64::MAX)?;
-    c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)
+    c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)?;
+    if m.image_stamp_ns > m.header.stamp_ns {
+        return Err(c.reject(
+            "image_stamp_ns",
+            None,
+            RejectReason::Inconsistent("image stamp after the status's own stamp"),
+        ));
+    }
+    Ok(())
 });
 
 code_enum!(

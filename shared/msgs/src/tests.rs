@@ -551,6 +551,7 @@ fn qp_status_rejects_bad_fields() {
         solve_time_ns: 80_000,
         objective: -3.5,
         slack_norm: 0.01,
+        image_stamp_ns: NOW - 40_000_000,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -576,6 +577,15 @@ fn qp_status_rejects_bad_fields() {
         "slack_norm",
         None,
         out_of_range,
+    );
+    assert_rejected(
+        &QpStatus {
+            image_stamp_ns: ok.header.stamp_ns + 1,
+            ..ok
+        },
+        "image_stamp_ns",
+        None,
+        inconsistent,
     );
 }
 

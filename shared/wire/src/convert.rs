@@ -84,6 +84,7 @@ pub fn perceived(m: &msgs::TargetEstimate) -> PerceivedTarget {
             velocity: Vector3::from(m.velocity),
         },
         stamp_ns: m.header.stamp_ns,
+        image_stamp_ns: m.image_stamp_ns,
     }
 }
 
@@ -208,9 +209,14 @@ pub fn gripper_command(command: GripperCommand, controller_id: u32) -> msgs::Gri
     m
 }
 
-/// The QP status message of one resolve that took `solve_time_ns` (`objective` stays zero: the
-/// resolver does not report it).
-pub fn qp_status(out: &ResolverOutput, solve_time_ns: u64) -> msgs::QpStatus {
+/// The QP status message of one resolve that took `solve_time_ns`, for a command that used the
+/// image captured at `image_stamp_ns` (if any). `objective` stays zero: the resolver does not
+/// report it.
+pub fn qp_status(
+    out: &ResolverOutput,
+    solve_time_ns: u64,
+    image_stamp_ns: Option<u64>,
+) -> msgs::QpStatus {
     let mut m = msgs::QpStatus::zeroed();
     m.outcome = match out.status {
         ResolveStatus::Solved => msgs::QpOutcome::Solved,
@@ -222,6 +228,7 @@ pub fn qp_status(out: &ResolverOutput, solve_time_ns: u64) -> msgs::QpStatus {
     m.solve_time_ns = solve_time_ns;
     let slack = out.slack.norm();
     m.slack_norm = if slack.is_finite() { slack } else { 0.0 };
+    m.image_stamp_ns = image_stamp_ns.unwrap_or(0);
     m
 }
 
@@ -286,6 +293,22 @@ mod tests {
                 omega: -0.1
             }
         );
+        let resolved = ResolverOutput {
+            base: BaseVelocity::default(),
+            arm_qd: vec![0.0; 7],
+            slack: nalgebra::Vector6::repeat(f64::NAN),
+            status: ResolveStatus::SolverFailed,
+            iterations: 3,
+        };
+        let mut status = qp_status(&resolved, 1_000, Some(42));
+        // Publishing stamps the header at or after the image.
+        status.header.stamp_ns = 50;
+        valid(&status);
+        assert_eq!(
+            msgs::QpOutcome::try_from(status.outcome),
+            Ok(msgs::QpOutcome::Failed)
+        );
+        assert_eq!((status.image_stamp_ns, status.slack_norm), (42, 0.0));
         let gripper = gripper_command(GripperCommand::Close, 4);
         valid(&gripper);
         assert_eq!(gripper.action(), Some(msgs::GripperAction::Close));

@@ -42,6 +42,8 @@ pub struct Snapshot<'a> {
     pub measured: Option<Measured<'a>>,
     /// Target of the current task (with a mission).
     pub target: Option<TargetEstimate>,
+    /// Capture stamp of the image behind `target`, ns, when it is a perception estimate.
+    pub image_stamp_ns: Option<u64>,
 }
 
 impl ControlInputs {
@@ -97,7 +99,10 @@ impl ControlInputs {
             .and_then(convert::mission_report)
             .and_then(|report| self.latch.update(&report));
         let perceived = self.target.get().map(convert::perceived);
-        let target = mission.map(|m| self.selector.select(&m, now_ns, perceived.as_ref()));
+        let selected = mission.map(|m| {
+            self.selector
+                .select_with_source(&m, now_ns, perceived.as_ref())
+        });
         let joints = match &self.joints {
             Some(latest) => latest.get().map(Some),
             None => Some(None),
@@ -116,7 +121,8 @@ impl ControlInputs {
         Snapshot {
             mission,
             measured,
-            target,
+            target: selected.map(|s| s.target),
+            image_stamp_ns: selected.and_then(|s| s.image_stamp_ns),
         }
     }
 }

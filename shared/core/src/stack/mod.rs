@@ -154,6 +154,17 @@ pub struct PerceivedTarget {
     pub estimate: TargetEstimate,
     /// Monotonic time perception published it, ns.
     pub stamp_ns: u64,
+    /// Capture stamp of the image the estimate's position came from, ns.
+    pub image_stamp_ns: u64,
+}
+
+/// The target of the current task and where it came from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SelectedTarget {
+    /// The target.
+    pub target: TargetEstimate,
+    /// Capture stamp of the image behind it, ns, when it is a perception estimate.
+    pub image_stamp_ns: Option<u64>,
 }
 
 /// Picks the current task's target from the mission and perception (see the module doc).
@@ -172,6 +183,16 @@ impl TargetSelector {
         now_ns: u64,
         perceived: Option<&PerceivedTarget>,
     ) -> TargetEstimate {
+        self.select_with_source(mission, now_ns, perceived).target
+    }
+
+    /// [`TargetSelector::select`], also saying which image the target came from.
+    pub fn select_with_source(
+        &mut self,
+        mission: &MissionView,
+        now_ns: u64,
+        perceived: Option<&PerceivedTarget>,
+    ) -> SelectedTarget {
         let seen_since = match self.task {
             Some((index, since)) if index == mission.task_index => since,
             _ => {
@@ -183,9 +204,15 @@ impl TargetSelector {
             Some(p)
                 if mission.current_kind() == Some(TaskKind::Pick) && p.stamp_ns >= seen_since =>
             {
-                p.estimate
+                SelectedTarget {
+                    target: p.estimate,
+                    image_stamp_ns: Some(p.image_stamp_ns),
+                }
             }
-            _ => TargetEstimate::fixed(mission.target),
+            _ => SelectedTarget {
+                target: TargetEstimate::fixed(mission.target),
+                image_stamp_ns: None,
+            },
         }
     }
 }

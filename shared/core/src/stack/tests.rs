@@ -111,6 +111,7 @@ fn selector_uses_perception_only_for_the_current_pick() {
             velocity: Vector3::new(0.03, 0.0, 0.0),
         },
         stamp_ns: 1_000 * MS,
+        image_stamp_ns: 960 * MS,
     };
     // The pick starts at t = 900 ms: the estimate stamped at 1000 ms belongs to it.
     let pick = view(0, TaskKind::Pick, Phase::Reach);
@@ -119,11 +120,14 @@ fn selector_uses_perception_only_for_the_current_pick() {
         selector.select(&pick, 1_010 * MS, Some(&seen)),
         seen.estimate
     );
+    let source = selector.select_with_source(&pick, 1_015 * MS, Some(&seen));
+    assert_eq!(source.image_stamp_ns, Some(960 * MS));
     // The place: the mission's container position, whatever perception last said.
     let mut place = view(1, TaskKind::Place, Phase::Reach);
     place.target = Vector3::new(4.0, 0.0, 0.35);
-    let chosen = selector.select(&place, 1_020 * MS, Some(&seen));
-    assert_eq!(chosen, TargetEstimate::fixed(place.target));
+    let chosen = selector.select_with_source(&place, 1_020 * MS, Some(&seen));
+    assert_eq!(chosen.target, TargetEstimate::fixed(place.target));
+    assert_eq!(chosen.image_stamp_ns, None);
     // A later pick ignores the previous pick's estimate until perception publishes anew.
     let mut next_pick = view(2, TaskKind::Pick, Phase::Reach);
     next_pick.task_count = 4;
