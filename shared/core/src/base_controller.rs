@@ -9,7 +9,7 @@
 //!    arm base, and the base pose at that moment.
 //!
 //! Everything is recomputed from the latest estimates every step, so a moving target is followed.
-//! Once the base has gone by the target (the "passed" latch) it steers straight for the next
+//! Once the base has gone by the target (the "passed" latch) it steers for the tangent point of the next
 //! target instead.
 //!
 //! Choices (each a [`BaseControllerConfig`] value where it is a number):
@@ -369,11 +369,17 @@ impl BaseController {
                 self.closest_approach = BasePose::new(point.x, point.y, yaw);
                 self.closest_approach
             }
-            None => {
-                // Passed: steer straight for the next target (β = 0).
-                let yaw = (next.y - b.y).atan2(next.x - b.x);
-                BasePose::new(next.x, next.y, yaw)
-            }
+            None => match tangent_point(base_xy, next, r_c, self.side) {
+                // Passed: steer for the next target's tangent point on the same side, so a task
+                // that lingers (e.g. a grasp still going on) never drives the base into the next
+                // target.
+                Some((point, tangent_heading)) => BasePose::new(point.x, point.y, tangent_heading),
+                // Already within r_C of the next target: straight on toward it (β = 0).
+                None => {
+                    let yaw = (next.y - b.y).atan2(next.x - b.x);
+                    BasePose::new(next.x, next.y, yaw)
+                }
+            },
         };
         let polar = polar_control(b, &goal, speed, &self.config);
         let omega = polar
