@@ -399,7 +399,15 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
     let mut q = robot.config.ready_pose.clone();
     let mut opening = 0.08;
     let mut phases_seen = Vec::new();
-    for cycle in 0..2400u64 {
+    // Up to 40 s, and on for 100 cycles after the mission completes.
+    let mut complete_cycles = 0;
+    for cycle in 0..8000u64 {
+        if mission.phase() == Phase::Complete {
+            complete_cycles += 1;
+            if complete_cycles > 100 {
+                break;
+            }
+        }
         let t = cycle as f64 * dt;
         let now_ns = cycle * 5 * MS;
         let view = latch.update(&report_of(&mission)).expect("a mission");
