@@ -229,10 +229,7 @@ pub fn run_trial(
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
     let mut world = World::new(robot, scenario, seed);
-    let mut camera_config = config.camera;
-    camera_config.pixel_noise_std = scenario.noise.camera_pixel_std;
-    camera_config.extrinsic_error = scenario.noise.camera_extrinsic_error;
-    let mut camera = PalmCamera::new(&camera_config, seed ^ 0x5eed_ca3e_0000_0001);
+    let mut camera = PalmCamera::for_trial(&config.camera, scenario, seed);
     let scenes = SceneBuilder::new(&world);
     let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
     let start = scenario.start();
@@ -440,7 +437,7 @@ pub fn run_trial(
         }
         if let Some(trace) = trace
             .as_mut()
-            .filter(|_| cycle % config.trace_every.max(1) == 0)
+            .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))
         {
             trace.base.push((truth.base_pose.x, truth.base_pose.y));
             let tool = truth.tool_pose.translation.vector;
