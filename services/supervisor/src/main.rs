@@ -9,19 +9,17 @@ use std::time::Duration;
 use clap::Parser;
 use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
 use motm_core::Robot;
-use motm_core::kinematics::BasePose;
 use motm_core::mission::{Phase, TaskKind};
 use motm_core::mission_tracker::{
     FinalProgress, MissionTracker, MissionTrackerInput, MissionTrackerOutput,
 };
 use motm_core::on_the_move::OnTheMoveConfig;
-use motm_core::{TargetEstimate, TaskProgress};
 use motm_msgs::{
-    BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TaskPhase,
-    TwistCommand, services,
+    BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TwistCommand, services,
 };
 use motm_sim::Scenario;
 use motm_supervisor::{LaunchContext, LaunchSpec, ProcessTable, StackConfig, TableEvent, binaries};
+use motm_wire::convert;
 use nalgebra::Vector3;
 
 /// Exit code for bad input (a bad file, key or value).
@@ -164,8 +162,6 @@ struct MissionPorts {
     state: Publisher<MissionState>,
     /// When the current task started, ns: older perception estimates belong to another object.
     task_started_ns: u64,
-    /// When the current final phase started, ns: older "complete" reports belong to another task.
-    final_started_ns: u64,
 }
 
 impl MissionPorts {
@@ -178,7 +174,6 @@ impl MissionPorts {
             final_twist: Latest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
             state: Publisher::new(bus, services::MISSION_STATE, &qos)?,
             task_started_ns: now_ns,
-            final_started_ns: now_ns,
         })
     }
 
@@ -191,30 +186,21 @@ impl MissionPorts {
         let _ = self.final_twist.update();
         let out = match (self.joints.get(), self.odometry.get()) {
             (Some(joints), Some(odometry)) => {
-                let count = (joints.joint_count as usize).min(joints.position.len());
                 let estimate = self
                     .target
                     .get()
-                    .filter(|t| t.visible == 1 && t.header.stamp_ns >= self.task_started_ns)
-                    .map(|t| TargetEstimate {
-                        position: Vector3::from(t.position),
-                        velocity: Vector3::from(t.velocity),
-                    });
-                let final_progress = self
-                    .final_twist
-                    .get()
-                    .filter(|t| t.header.stamp_ns >= self.final_started_ns)
-                    .map(|t| FinalProgress {
-                        task_index: tracker.mission().task_index(),
-                        progress: if t.phase() == Some(TaskPhase::Complete) {
-                            TaskProgress::Done
-                        } else {
-                            TaskProgress::Active
-                        },
-                    });
+                    .map(convert::perceived)
+                    .filter(|p| p.stamp_ns >= self.task_started_ns)
+                    .map(|p| p.estimate);
+                let final_progress = self.final_twist.get().and_then(|m| {
+                    Some(FinalProgress {
+                        task_index: m.task_index as usize,
+                        progress: convert::progress(m)?,
+                    })
+                });
                 tracker.step(&MissionTrackerInput {
-                    base: BasePose::new(odometry.x, odometry.y, odometry.yaw),
-                    arm_q: &joints.position[..count],
+                    base: convert::base_pose(odometry),
+                    arm_q: convert::arm_q(joints),
                     estimate,
                     final_progress,
                 })
@@ -226,9 +212,7 @@ impl MissionPorts {
                 "supervisor: mission task {}/{} phase {:?} (tool to target {:.3} m)",
                 out.task_index, out.task_count, out.phase, out.tool_to_target
             );
-            if out.phase == Phase::Final {
-                self.final_started_ns = now_ns;
-            } else {
+            if out.phase != Phase::Final {
                 self.task_started_ns = now_ns;
             }
         }
@@ -248,12 +232,7 @@ fn mission_state(out: &MissionTrackerOutput) -> MissionState {
         Some(TaskKind::PressButton) => TaskKindCode::PressButton,
     }
     .into();
-    m.phase = match out.phase {
-        Phase::Reach => TaskPhase::Reach,
-        Phase::Final => TaskPhase::Final,
-        Phase::Complete => TaskPhase::Complete,
-    }
-    .into();
+    m.phase = convert::phase_code(out.phase).into();
     m.current_target = out.current_target.into();
     if let Some(next) = out.next_target {
         m.next_target = next.into();

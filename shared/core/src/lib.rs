@@ -20,6 +20,7 @@
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
+//! - [`stack`]: the control loop split into per-process cycle functions for the deployed stack.
 //! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
 //! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
 //! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
@@ -47,6 +48,7 @@ pub mod resolver;
 pub mod restart_policy;
 pub mod robot;
 pub mod servo;
+pub mod stack;
 pub mod types;
 pub mod watchdog;
 

@@ -5,7 +5,7 @@
 //! Choices:
 //! - **Target of the current task**: perception's estimate for a pick once it has one,
 //!   otherwise the mission's known position (what the in-process runner does).
-//! - **Tool-to-target distance** is measured to the reach aim ([`reach_aim`]), exactly as the
+//! - **Tool-to-target distance** is measured to the reach aim ([`crate::stack::reach_aim`]), exactly as the
 //!   composed controller measures it, so both switch to the final phase at the same point.
 //! - **Final-phase progress** counts only when it names the current task and the mission is
 //!   in the final phase: a stale "done" of the previous task can never skip the next one.
@@ -18,22 +18,8 @@ use crate::kinematics::BasePose;
 use crate::mission::{Mission, MissionTask, Phase, TaskKind};
 use crate::on_the_move::OnTheMoveConfig;
 use crate::robot::Robot;
+use crate::stack::reach_aim;
 use crate::types::{TargetEstimate, TaskProgress};
-
-/// The point the reacher sends the tool to for `task` whose target estimate is `target`: a
-/// place task's container point is raised so that the reacher's pre-grasp point is the drop
-/// controller's release point.
-pub fn reach_aim(
-    task: &MissionTask,
-    target: &TargetEstimate,
-    config: &OnTheMoveConfig,
-) -> TargetEstimate {
-    let mut aim = *target;
-    if task.kind == TaskKind::Place {
-        aim.position.z += config.final_phase.drop.release_height - config.reacher.pregrasp_height;
-    }
-    aim
-}
 
 /// Progress reported by the final-phase controller, for one task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -149,7 +135,7 @@ impl MissionTracker {
                 .all(|v| v.is_finite());
         let tool_to_target = if finite {
             let tool = self.robot.tool_pose(&input.base, input.arm_q);
-            let aim = reach_aim(&task, &target, &self.config);
+            let aim = reach_aim(task.kind, &target, &self.config);
             (tool.translation.vector - aim.position).norm()
         } else {
             f64::INFINITY
@@ -272,27 +258,6 @@ mod tests {
         // The last task's next target is the run-out point beyond it.
         let next = out.next_target.unwrap();
         assert!(next.x > 4.0, "{next}");
-    }
-
-    #[test]
-    fn the_place_aim_is_raised_to_the_release_height() {
-        let config = OnTheMoveConfig::default();
-        let task = MissionTask {
-            kind: TaskKind::Place,
-            item: 0,
-            position: Vector3::new(1.0, 0.0, 0.3),
-        };
-        let aim = reach_aim(&task, &TargetEstimate::fixed(task.position), &config);
-        let lift = config.final_phase.drop.release_height - config.reacher.pregrasp_height;
-        assert!((aim.position.z - (0.3 + lift)).abs() < 1e-12);
-        let pick = MissionTask {
-            kind: TaskKind::Pick,
-            ..task
-        };
-        assert_eq!(
-            reach_aim(&pick, &TargetEstimate::fixed(pick.position), &config).position,
-            pick.position
-        );
     }
 
     #[test]

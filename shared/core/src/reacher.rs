@@ -57,7 +57,8 @@ pub struct ReacherConfig {
     /// The reacher aims this far straight above the object (the pre-grasp point), m. The
     /// final-phase controller descends the rest, so the approach ends from above and the fingers
     /// do not sweep into the cube. It must be smaller than the final-phase hand-over distance
-    /// d_T (0.1 m), or the hand-over would never happen.
+    /// d_T (0.1 m), or the hand-over would never happen. 0.05 m: the fingertips reach 5 mm below
+    /// the tool point, so they clear a 30 mm cube's top by 3 cm at the pre-grasp point.
     pub pregrasp_height: f64,
     /// Shortest trajectory duration T, s, so that a trajectory that is almost done does not
     /// demand a huge velocity.
@@ -66,6 +67,9 @@ pub struct ReacherConfig {
     pub min_base_speed: f64,
     /// Gain of the proportional correction toward the ready pose while holding, 1/s.
     pub hold_gain: f64,
+    /// Largest speed of the holding correction, m/s: after a task the tool returns to the ready
+    /// pose at most this fast instead of jumping back with the full gain.
+    pub hold_max_speed: f64,
     /// Symmetry of the object about the vertical, rad (π/2 for a cube). When the object's yaw is
     /// known, the gripper yaw is the object's yaw plus the multiple of this closest to the
     /// gripper's current yaw.
@@ -80,6 +84,7 @@ impl Default for ReacherConfig {
             min_duration: 0.2,
             min_base_speed: 0.05,
             hold_gain: 2.0,
+            hold_max_speed: 0.25,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
         }
     }
@@ -97,6 +102,7 @@ impl ReacherConfig {
             ("min_duration", self.min_duration > 0.0),
             ("min_base_speed", self.min_base_speed > 0.0),
             ("hold_gain", self.hold_gain >= 0.0),
+            ("hold_max_speed", self.hold_max_speed > 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
         ];
         for (key, ok) in checks {
@@ -340,7 +346,7 @@ impl Reacher {
         let rotation_error = (ready.rotation * input.tool.pose.rotation.inverse()).scaled_axis();
         ReacherOutput {
             twist: stack(
-                &(carried + position_error * gain),
+                &(carried + (position_error * gain).cap_magnitude(self.config.hold_max_speed)),
                 &(yaw_rate + rotation_error * gain),
             ),
             acceleration: Vector6::zeros(),

@@ -43,6 +43,8 @@ pub struct RunnerConfig {
     pub timeout_per_task: f64,
     /// Record one trace sample every this many control cycles.
     pub trace_every: usize,
+    /// Also record every control cycle in the trace ([`TrialTrace::cycles`]).
+    pub record_cycles: bool,
     /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
     pub camera: CameraConfig,
     /// Perception.
@@ -65,6 +67,7 @@ impl Default for RunnerConfig {
             timeout_base: 30.0,
             timeout_per_task: 40.0,
             trace_every: 10,
+            record_cycles: false,
             camera: CameraConfig::default(),
             perception: PerceptionConfig::default(),
             acceleration: AccelerationFilterConfig::default(),
@@ -74,6 +77,10 @@ impl Default for RunnerConfig {
         }
     }
 }
+
+/// e_t used in the QP's 1/e_t weights when tracking the planning baseline's EE twist: small, so
+/// the slack is expensive and the planned twist is followed.
+const PLANNING_POSITION_ERROR: f64 = 0.02;
 
 /// A method's controller, stepped at the control rate.
 enum Controller {
@@ -222,10 +229,7 @@ pub fn run_trial(
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
     let mut world = World::new(robot, scenario, seed);
-    let mut camera_config = config.camera;
-    camera_config.pixel_noise_std = scenario.noise.camera_pixel_std;
-    camera_config.extrinsic_error = scenario.noise.camera_extrinsic_error;
-    let mut camera = PalmCamera::new(&camera_config, seed ^ 0x5eed_ca3e_0000_0001);
+    let mut camera = PalmCamera::for_trial(&config.camera, scenario, seed);
     let scenes = SceneBuilder::new(&world);
     let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
     let start = scenario.start();
@@ -238,11 +242,15 @@ pub fn run_trial(
             tasks.clone(),
             Vector3::new(start.x, start.y, 0.0),
         ))),
-        Method::Reactive => Controller::Reactive(Box::new(ReactiveBaseline::new(
-            robot.clone(),
-            config.reactive.clone(),
-            tasks.clone(),
-        ))),
+        Method::Reactive => {
+            let mut reactive = config.reactive.clone();
+            reactive.max_base_speed = scenario.base_speed;
+            Controller::Reactive(Box::new(ReactiveBaseline::new(
+                robot.clone(),
+                reactive,
+                tasks.clone(),
+            )))
+        }
         Method::Planning => {
             let [object] = scenario.objects.as_slice() else {
                 return Err(format!(
@@ -365,7 +373,7 @@ pub fn run_trial(
                     &sensors.base_pose,
                     &sensors.arm_q,
                     plan.gripper_twist,
-                    1.0,
+                    PLANNING_POSITION_ERROR,
                     Some(plan.base),
                 );
                 let gripper = if plan.progress == TaskProgress::Done {
@@ -396,9 +404,40 @@ pub fn run_trial(
         }
         let truth = world.truth();
         meter.push(truth.tool_pose.translation.vector);
+        if let Some(trace) = trace.as_mut().filter(|_| config.record_cycles) {
+            let tool = truth.tool_pose.translation.vector;
+            let cube = truth
+                .objects
+                .get(tasks.get(task_index).map_or(0, |t| t.item))
+                .map_or(Vector3::zeros(), |o| o.position());
+            let odom = &sensors.base_pose;
+            trace.cycles.push(vec![
+                t,
+                task_index as f64,
+                truth.base_pose.x,
+                truth.base_pose.y,
+                truth.base_pose.yaw,
+                odom.x,
+                odom.y,
+                odom.yaw,
+                truth.base_velocity.v,
+                tool.x,
+                tool.y,
+                tool.z,
+                target.position.x,
+                target.position.y,
+                target.position.z,
+                cube.x,
+                cube.y,
+                cube.z,
+                truth.gripper_opening,
+                command.base.v,
+                command.base.omega,
+            ]);
+        }
         if let Some(trace) = trace
             .as_mut()
-            .filter(|_| cycle % config.trace_every.max(1) == 0)
+            .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))
         {
             trace.base.push((truth.base_pose.x, truth.base_pose.y));
             let tool = truth.tool_pose.translation.vector;
