@@ -38,6 +38,9 @@ struct Args {
     /// Scenario file or name (default: the stack's `scenario`).
     #[arg(long)]
     scenario: Option<String>,
+    /// Base speed v_F, m/s (default: the scenario's `base_speed`).
+    #[arg(long)]
+    base_speed: Option<f64>,
     /// Random seed (default: the stack's `seed`).
     #[arg(long)]
     seed: Option<u64>,
@@ -86,9 +89,14 @@ fn setup(args: &Args) -> Result<Setup, String> {
             missing.join(", ")
         ));
     }
+    let mut scenario_file = Scenario::from_file(&scenario).map_err(|e| e.to_string())?;
+    if let Some(v) = args.base_speed {
+        scenario_file.set_base_speed(v).map_err(|e| e.to_string())?;
+    }
     let context = LaunchContext {
         config_dir: config_dir.clone(),
         scenario: scenario.clone(),
+        base_speed: scenario_file.base_speed,
         seed: args.seed.unwrap_or(stack.seed),
         control_rate_hz,
     };
@@ -105,13 +113,12 @@ fn setup(args: &Args) -> Result<Setup, String> {
     let mission = if args.no_mission {
         None
     } else {
-        let scenario = Scenario::from_file(&scenario).map_err(|e| e.to_string())?;
-        let robot = Robot::load(&config_dir, &scenario.robot).map_err(|e| e.to_string())?;
-        let start = scenario.start();
+        let robot = Robot::load(&config_dir, &scenario_file.robot).map_err(|e| e.to_string())?;
+        let start = scenario_file.start();
         Some(MissionTracker::new(
             robot,
             OnTheMoveConfig::default(),
-            scenario.mission_tasks(),
+            scenario_file.mission_tasks(),
             Vector3::new(start.x, start.y, 0.0),
         ))
     };

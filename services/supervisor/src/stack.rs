@@ -2,7 +2,7 @@
 //! the restart policy and the watchdog settings (`config/frankie.toml`, `config/fetch.toml`,
 //! `config/husky_ur5.toml`). Not to be confused with the robot model in `config/robots/`.
 //!
-//! Process arguments are templates: `{config_dir}`, `{scenario}`, `{robot}`, `{seed}`,
+//! Process arguments are templates: `{config_dir}`, `{scenario}`, `{base_speed}`, `{robot}`, `{seed}`,
 //! `{rate}` (the process's own rate), `{control_rate}` and `{stack}` (this file) are replaced
 //! when the process is launched.
 
@@ -15,9 +15,10 @@ use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
 use serde::Deserialize;
 
 /// The placeholders an argument template may use.
-pub const PLACEHOLDERS: [&str; 7] = [
+pub const PLACEHOLDERS: [&str; 8] = [
     "config_dir",
     "scenario",
+    "base_speed",
     "robot",
     "seed",
     "rate",
@@ -105,6 +106,8 @@ pub struct LaunchContext {
     pub config_dir: PathBuf,
     /// Scenario file.
     pub scenario: PathBuf,
+    /// Base speed v_F, m/s (the scenario's, or an override).
+    pub base_speed: f64,
     /// Random seed.
     pub seed: u64,
     /// Control rate, Hz (overrides the stack's `control_rate_hz`).
@@ -201,6 +204,7 @@ impl StackConfig {
         let values = [
             ("config_dir", context.config_dir.display().to_string()),
             ("scenario", context.scenario.display().to_string()),
+            ("base_speed", context.base_speed.to_string()),
             ("robot", self.robot.clone()),
             ("seed", context.seed.to_string()),
             ("rate", rate.to_string()),
@@ -309,7 +313,7 @@ mod tests {
             [[process]]
             name = "sim-world"
             rate_hz = 1000.0
-            args = ["--scenario", "{scenario}", "--rate", "{rate}", "--seed={seed}"]
+            args = ["--scenario", "{scenario}", "--rate", "{rate}", "--seed={seed}", "--base-speed", "{base_speed}"]
             [[process]]
             name = "reacher"
             args = ["--rate", "{rate}", "--robot", "{robot}", "--stack", "{stack}"]
@@ -319,12 +323,21 @@ mod tests {
         let context = LaunchContext {
             config_dir: PathBuf::from("/c"),
             scenario: PathBuf::from("/c/s.toml"),
+            base_speed: 0.5,
             seed: 7,
             control_rate_hz: 1000.0,
         };
         assert_eq!(
             stack.expand_args(&stack.processes[0], &context),
-            ["--scenario", "/c/s.toml", "--rate", "1000", "--seed=7"]
+            [
+                "--scenario",
+                "/c/s.toml",
+                "--rate",
+                "1000",
+                "--seed=7",
+                "--base-speed",
+                "0.5"
+            ]
         );
         assert_eq!(
             stack.expand_args(&stack.processes[1], &context),
