@@ -6,6 +6,7 @@
 //! - [`base_controller`]: closest-approach geometry and the constant-speed polar base controller.
 //! - [`camera`]: the palm camera's equidistant fisheye model, configuration and calibration.
 //! - [`chain`]: serial chains loaded from URDF.
+//! - [`command_limiter`]: the drivers' velocity, acceleration and jerk limiter with stale-command and safe-stop ramps.
 //! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
 //! - [`input_check`]: refusing non-finite controller input.
@@ -28,6 +29,7 @@
 pub mod base_controller;
 pub mod camera;
 pub mod chain;
+pub mod command_limiter;
 pub mod error;
 pub mod final_phase;
 pub mod holistic;
