@@ -295,6 +295,86 @@ impl CommandLimiter {
     }
 }
 
+/// Checks a stream of output velocities (one sample per `dt`) against the limits: velocity,
+/// acceleration and jerk by finite differences, with a relative tolerance for rounding. The
+/// drivers run it on their own output as a self-check; it starts from rest.
+#[derive(Debug, Clone)]
+pub struct LimitMonitor {
+    limits: Vec<AxisLimits>,
+    dt: f64,
+    tolerance: f64,
+    last: Vec<AxisState>,
+    worst: [f64; 3],
+    violations: u64,
+}
+
+impl LimitMonitor {
+    /// A monitor for `limits` at period `dt`, accepting up to `1 + tolerance` times a limit.
+    pub fn new(limits: &[AxisLimits], dt: f64, tolerance: f64) -> Self {
+        Self {
+            limits: limits.to_vec(),
+            dt,
+            tolerance,
+            last: vec![AxisState::default(); limits.len()],
+            worst: [0.0; 3],
+            violations: 0,
+        }
+    }
+
+    /// Restarts the finite differences from `velocity` at zero acceleration.
+    pub fn reset(&mut self, velocity: &[f64]) {
+        for (state, &v) in self.last.iter_mut().zip(velocity) {
+            *state = AxisState {
+                velocity: v,
+                acceleration: 0.0,
+            };
+        }
+    }
+
+    /// Takes the next output sample; returns whether it broke a limit (or is not finite or has
+    /// the wrong length), counting it.
+    pub fn check(&mut self, velocity: &[f64]) -> bool {
+        let mut broken = velocity.len() != self.limits.len();
+        for ((&v, l), last) in velocity.iter().zip(&self.limits).zip(&mut self.last) {
+            let a = (v - last.velocity) / self.dt;
+            let j = (a - last.acceleration) / self.dt;
+            let ratios = [
+                v.abs() / l.velocity,
+                a.abs() / l.acceleration,
+                if l.jerk.is_finite() {
+                    j.abs() / l.jerk
+                } else {
+                    0.0
+                },
+            ];
+            for (worst, r) in self.worst.iter_mut().zip(ratios) {
+                if !(r <= 1.0 + self.tolerance) {
+                    broken = true;
+                }
+                *worst = worst.max(r);
+            }
+            *last = AxisState {
+                velocity: v,
+                acceleration: a,
+            };
+        }
+        if broken {
+            self.violations += 1;
+        }
+        broken
+    }
+
+    /// Samples that broke a limit so far.
+    pub fn violations(&self) -> u64 {
+        self.violations
+    }
+
+    /// Largest ratio of |velocity|, |acceleration| and |jerk| to its limit seen so far.
+    pub fn worst_ratios(&self) -> [f64; 3] {
+        self.worst
+    }
+}
+
 /// Message for a limit that must be positive.
 fn positive(value: f64) -> String {
     format!("must be positive, got {value}")
@@ -371,49 +451,24 @@ mod tests {
         CommandLimiter::new(limits.to_vec(), dt, CommandLimiterConfig::default()).unwrap()
     }
 
-    /// Checks one output step against the limits, with a small relative tolerance for
-    /// rounding; returns the new (velocity, acceleration) per axis.
+    /// Asserts that every output sample is within the limits.
     struct LimitChecker {
-        limits: Vec<AxisLimits>,
-        dt: f64,
-        last: Vec<(f64, f64)>,
-        worst: [f64; 3],
+        monitor: LimitMonitor,
     }
 
     impl LimitChecker {
         fn new(limits: &[AxisLimits], dt: f64) -> Self {
             Self {
-                limits: limits.to_vec(),
-                dt,
-                last: vec![(0.0, 0.0); limits.len()],
-                worst: [0.0; 3],
+                monitor: LimitMonitor::new(limits, dt, 1e-9),
             }
         }
 
         fn check(&mut self, velocity: &[f64], context: &str) {
-            for (i, (&v, l)) in velocity.iter().zip(&self.limits).enumerate() {
-                assert!(v.is_finite(), "{context}: axis {i} velocity {v}");
-                let (v0, a0) = self.last[i];
-                let a = (v - v0) / self.dt;
-                let j = (a - a0) / self.dt;
-                let ratios = [
-                    v.abs() / l.velocity,
-                    a.abs() / l.acceleration,
-                    if l.jerk.is_finite() {
-                        j.abs() / l.jerk
-                    } else {
-                        0.0
-                    },
-                ];
-                for (k, r) in ratios.iter().enumerate() {
-                    assert!(
-                        *r <= 1.0 + 1e-9,
-                        "{context}: axis {i} limit {k} exceeded: ratio {r} (v {v}, a {a}, j {j})"
-                    );
-                    self.worst[k] = self.worst[k].max(*r);
-                }
-                self.last[i] = (v, a);
-            }
+            assert!(
+                !self.monitor.check(velocity),
+                "{context}: a limit was exceeded by {velocity:?}: worst ratios {:?}",
+                self.monitor.worst_ratios()
+            );
         }
     }
 
@@ -448,11 +503,8 @@ mod tests {
             "reached after {reached} steps"
         );
         // The profile uses the limits (it is not needlessly slow).
-        assert!(
-            checker.worst[1] > 0.99 && checker.worst[2] > 0.99,
-            "{:?}",
-            checker.worst
-        );
+        let worst = checker.monitor.worst_ratios();
+        assert!(worst[1] > 0.99 && worst[2] > 0.99, "{worst:?}");
     }
 
     #[test]
@@ -638,8 +690,27 @@ mod tests {
         l.reset(&[9.0, -9.0]);
         assert_eq!(l.velocity(), &[PANDA.velocity, -BASE.velocity]);
         let mut checker = LimitChecker::new(&[PANDA, BASE], DT);
-        checker.last = vec![(PANDA.velocity, 0.0), (-BASE.velocity, 0.0)];
+        checker.monitor.reset(&[PANDA.velocity, -BASE.velocity]);
         steps_to_zero(&mut l, &none, &mut checker);
+    }
+
+    #[test]
+    fn the_monitor_flags_steps_that_break_each_limit() {
+        let mut m = LimitMonitor::new(&[PANDA], DT, 1e-9);
+        // 7.5 rad/s² after one step: jerk 7500 is exactly at the limit.
+        assert!(!m.check(&[0.0075 * DT]));
+        // A velocity step of 0.1 rad/s in 1 ms is 100 rad/s²: beyond the acceleration limit.
+        assert!(m.check(&[0.1]));
+        assert!(m.check(&[f64::NAN]));
+        assert!(m.check(&[]));
+        assert_eq!(m.violations(), 3);
+        let mut m = LimitMonitor::new(&[BASE], 0.02, 1e-9);
+        assert!(
+            !m.check(&[0.016]),
+            "0.8 m/s² at once: no jerk limit on the base"
+        );
+        m.reset(&[1.2]);
+        assert!(m.check(&[1.3]), "beyond the velocity limit");
     }
 
     #[test]

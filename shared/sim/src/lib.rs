@@ -15,6 +15,7 @@ pub mod random;
 pub mod render;
 pub mod runner;
 pub mod scenario;
+pub mod sim_world;
 pub mod world;
 
 pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject};

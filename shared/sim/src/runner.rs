@@ -87,13 +87,14 @@ enum Controller {
 }
 
 /// The scene the camera sees: the fixed layout plus the cubes where they are now.
-struct SceneBuilder {
+pub(crate) struct SceneBuilder {
     fixed: Scene,
     cube_size: f64,
 }
 
 impl SceneBuilder {
-    fn new(world: &World) -> Self {
+    /// The fixed part of the scene of `world`.
+    pub(crate) fn new(world: &World) -> Self {
         let layout = world.layout();
         let mut fixed = Scene::default();
         for platform in &layout.platforms {
@@ -121,7 +122,8 @@ impl SceneBuilder {
         }
     }
 
-    fn scene(&self, world: &World) -> Scene {
+    /// The scene with the cubes where they are now.
+    pub(crate) fn scene(&self, world: &World) -> Scene {
         let mut scene = self.fixed.clone();
         for object in &world.truth().objects {
             let mut cube = SceneBox::cube(object.position(), 0.0, self.cube_size);
@@ -222,10 +224,7 @@ pub fn run_trial(
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
     let mut world = World::new(robot, scenario, seed);
-    let mut camera_config = config.camera;
-    camera_config.pixel_noise_std = scenario.noise.camera_pixel_std;
-    camera_config.extrinsic_error = scenario.noise.camera_extrinsic_error;
-    let mut camera = PalmCamera::new(&camera_config, seed ^ 0x5eed_ca3e_0000_0001);
+    let mut camera = crate::sim_world::palm_camera(&config.camera, scenario, seed);
     let scenes = SceneBuilder::new(&world);
     let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
     let start = scenario.start();
