@@ -20,6 +20,7 @@
 //! - [`reactive`]: the reactive (holistic stop-and-grasp) baseline's task stages.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
+//! - [`velocity_driver`]: the arm and base drivers' logic: command ages and gaps, limiter, self-check.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
 //! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
 //! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
@@ -48,6 +49,7 @@ pub mod resolver;
 pub mod robot;
 pub mod servo;
 pub mod types;
+pub mod velocity_driver;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use error::ModelError;
