@@ -26,6 +26,16 @@ pub fn palm_camera(base: &CameraConfig, scenario: &Scenario, seed: u64) -> PalmC
     PalmCamera::new(&config, seed ^ 0x5eed_ca3e_0000_0001)
 }
 
+/// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
+pub fn scenario_path(config_dir: &std::path::Path, name: &str) -> std::path::PathBuf {
+    let direct = std::path::PathBuf::from(name);
+    if direct.is_file() {
+        direct
+    } else {
+        config_dir.join("scenarios").join(format!("{name}.toml"))
+    }
+}
+
 /// Settings of [`SimWorld`] beyond the [`RunnerConfig`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
