@@ -80,16 +80,18 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
     let bus = Bus::open("panda-driver").map_err(failed)?;
     let qos = Qos::default();
     let mut gripper_in =
-        Subscriber::<GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos).map_err(failed)?;
+        Subscriber::<GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos)
+            .map_err(failed)?;
     let mut active =
         Latest::<ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)
             .map_err(failed)?;
     let mut hw_gripper_state =
         Latest::<GripperState>::new(&bus, services::HW_GRIPPER_STATE, &qos).map_err(failed)?;
-    let mut hw_gripper =
-        Publisher::<GripperCommand>::new(&bus, services::HW_GRIPPER_COMMAND, &qos).map_err(failed)?;
+    let mut hw_gripper = Publisher::<GripperCommand>::new(&bus, services::HW_GRIPPER_COMMAND, &qos)
+        .map_err(failed)?;
     let mut gripper_state =
-        Publisher::<GripperState>::new(&bus, services::ARM_GRIPPER_STATE, &qos).map_err(failed)?;
+        Publisher::<GripperState>::new(&bus, services::ARM_GRIPPER_STATE, &qos.waking())
+            .map_err(failed)?;
     let status_period = Duration::from_secs_f64(1.0 / args.status_rate);
     motm_driver::run_driver::<Arm>(&bus, driver, period, status_period, |_, safe_stop| {
         active.update().ok();

@@ -159,7 +159,9 @@ mod tests {
         assert_eq!(outcome(TrialStatus::Running), SimOutcome::Running);
         assert_eq!(outcome(TrialStatus::TimedOut), SimOutcome::Timeout);
         assert_eq!(
-            outcome(TrialStatus::Decided(Outcome::Failure(FailureReason::MissedGrasp))),
+            outcome(TrialStatus::Decided(Outcome::Failure(
+                FailureReason::MissedGrasp
+            ))),
             SimOutcome::MissedGrasp
         );
         assert_eq!(

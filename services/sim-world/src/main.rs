@@ -143,11 +143,14 @@ fn serve(cli: &Cli, setup: Setup) -> Result<(), BusError> {
     let mut arm_out = Publisher::<JointState>::new(&bus, services::HW_ARM_STATE, &qos)?;
     let mut base_out = Publisher::<BaseOdometry>::new(&bus, services::HW_BASE_STATE, &qos)?;
     let mut gripper_out = Publisher::<GripperState>::new(&bus, services::HW_GRIPPER_STATE, &qos)?;
-    let mut camera_out = Publisher::<CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large())?;
+    let mut camera_out =
+        Publisher::<CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large().waking())?;
     let mut truth_out = Publisher::<SimTruth>::new(&bus, services::SIM_TRUTH, &qos)?;
     let period = Duration::from_secs_f64(sim.physics_step());
     let period_ns = period.as_nanos() as u64;
-    let truth_every = ((1.0 / cli.truth_rate) / sim.physics_step()).round().max(1.0) as u64;
+    let truth_every = ((1.0 / cli.truth_rate) / sim.physics_step())
+        .round()
+        .max(1.0) as u64;
     let mut service = ServiceLoop::new(
         &bus,
         LoopConfig {
@@ -200,8 +203,12 @@ fn serve(cli: &Cli, setup: Setup) -> Result<(), BusError> {
         // Steps beyond the catch-up limit are dropped: the simulation falls behind.
         steps_done += due;
         let sensors = sim.sensors();
-        arm_out.publish(convert::joint_state(sensors)).unwrap_or_else(report);
-        base_out.publish(convert::odometry(sensors)).unwrap_or_else(report);
+        arm_out
+            .publish(convert::joint_state(sensors))
+            .unwrap_or_else(report);
+        base_out
+            .publish(convert::odometry(sensors))
+            .unwrap_or_else(report);
         gripper_out
             .publish(convert::gripper_state(sim.truth()))
             .unwrap_or_else(report);
@@ -209,7 +216,9 @@ fn serve(cli: &Cli, setup: Setup) -> Result<(), BusError> {
             // The frame's age in simulated time, mapped onto the monotonic clock.
             let stamp = now.saturating_sub(((sim.truth().time - frame.stamp) * 1e9) as u64);
             camera_out
-                .publish_with(Stamp::At(stamp), |image| convert::camera_image(&frame, image))
+                .publish_with(Stamp::At(stamp), |image| {
+                    convert::camera_image(&frame, image)
+                })
                 .unwrap_or_else(report);
         }
         let status = sim.status();

@@ -272,8 +272,11 @@ impl CommandLimiter {
         }
     }
 
-    /// Stores a new command as the target; returns whether it was a violation.
-    fn accept(&mut self, command: &[f64]) -> bool {
+    /// Takes in a new command as the target (the same as passing it in
+    /// [`LimiterInput::command`]); returns whether it was a violation. Call it for every
+    /// command that arrives, so each one is checked and counted even when several arrive
+    /// between two steps.
+    pub fn accept(&mut self, command: &[f64]) -> bool {
         if command.len() != self.limits.len() || command.iter().any(|v| !v.is_finite()) {
             self.counters.limit_violations += 1;
             self.counters.ignored_commands += 1;

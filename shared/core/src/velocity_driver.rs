@@ -39,8 +39,6 @@ pub struct DriverCounters {
 pub struct VelocityDriver {
     limiter: CommandLimiter,
     monitor: LimitMonitor,
-    pending: Vec<f64>,
-    has_pending: bool,
     last_stamp_ns: Option<u64>,
     max_gap_ns: u64,
     commands_received: u64,
@@ -60,8 +58,6 @@ impl VelocityDriver {
         Ok(Self {
             limiter,
             monitor,
-            pending: Vec::new(),
-            has_pending: false,
             last_stamp_ns: None,
             max_gap_ns: 0,
             commands_received: 0,
@@ -76,16 +72,14 @@ impl VelocityDriver {
     }
 
     /// Takes in one command stamped `stamp_ns` (call it for every command that arrived, oldest
-    /// first; the newest is used at the next step).
+    /// first: each is checked against the limits and counted; the newest is the target).
     pub fn receive(&mut self, stamp_ns: u64, velocity: &[f64]) {
         self.commands_received += 1;
         if let Some(last) = self.last_stamp_ns {
             self.max_gap_ns = self.max_gap_ns.max(stamp_ns.saturating_sub(last));
         }
         self.last_stamp_ns = Some(self.last_stamp_ns.map_or(stamp_ns, |l| l.max(stamp_ns)));
-        self.pending.clear();
-        self.pending.extend_from_slice(velocity);
-        self.has_pending = true;
+        self.limiter.accept(velocity);
     }
 
     /// One driver cycle at monotonic time `now_ns`: `measured` is the hardware's current
@@ -104,13 +98,11 @@ impl VelocityDriver {
             self.monitor.reset(self.limiter.velocity());
             self.hardware_ready = true;
         }
-        let command = self.has_pending.then_some(self.pending.as_slice());
-        self.has_pending = false;
         let command_age = self
             .last_stamp_ns
             .map(|stamp| now_ns.saturating_sub(stamp) as f64 * 1e-9);
         let out = self.limiter.step(&LimiterInput {
-            command,
+            command: None,
             command_age,
             safe_stop,
         });
@@ -163,6 +155,35 @@ mod tests {
             "{out:?}"
         );
         assert_eq!(d.counters().output_violations, 0);
+    }
+
+    #[test]
+    fn every_command_is_checked_even_when_several_arrive_in_one_cycle() {
+        let mut d = panda_like();
+        d.step(0, false, Some(&[0.0, 0.0]));
+        d.receive(MS, &[3.0, 0.0]);
+        d.receive(2 * MS, &[0.0, f64::NAN]);
+        d.receive(3 * MS, &[1.0, 0.0]);
+        d.step(3 * MS, false, None);
+        let c = d.counters();
+        assert_eq!(c.commands_received, 3);
+        assert_eq!(
+            (
+                c.limiter.limit_violations,
+                c.limiter.clamped_commands,
+                c.limiter.ignored_commands
+            ),
+            (2, 1, 1)
+        );
+        for k in 0..500 {
+            d.receive((4 + k) * MS, &[1.0, 0.0]);
+            d.step((4 + k) * MS, false, None);
+        }
+        assert_eq!(
+            d.step(504 * MS, false, None).unwrap(),
+            &[1.0, 0.0],
+            "the newest is the target"
+        );
     }
 
     #[test]

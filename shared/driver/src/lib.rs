@@ -12,10 +12,13 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use motm_bus::{Bus, BusError, Flow, Latest, LoopConfig, LoopExit, Publisher, Qos, ServiceLoop, Stamp, Subscriber};
+use motm_bus::{
+    Bus, BusError, Flow, Latest, LoopConfig, LoopExit, Publisher, Qos, ServiceLoop, Stamp,
+    Subscriber,
+};
+use motm_core::Robot;
 use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig, LimiterMode};
 use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverConfig};
-use motm_core::Robot;
 use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
 
 /// Exit code for bad input (flags, config, robot model).
@@ -75,7 +78,11 @@ impl DriverArgs {
     }
 
     /// The driver logic for axes with `limits` at `period`, from the flags.
-    pub fn driver(&self, limits: Vec<AxisLimits>, period: Duration) -> Result<VelocityDriver, String> {
+    pub fn driver(
+        &self,
+        limits: Vec<AxisLimits>,
+        period: Duration,
+    ) -> Result<VelocityDriver, String> {
         positive_rate("--command-rate", self.command_rate)?;
         positive_rate("--status-rate", self.status_rate)?;
         if self.stale_periods == 0 {
@@ -162,7 +169,8 @@ pub fn run_driver<T: DriverTopics>(
     let mut safe_stop = Latest::<SafeStop>::new(bus, services::SAFETY_SAFE_STOP, &qos)?;
     let mut hw_state = Latest::<T::State>::new(bus, T::HW_STATE, &qos)?;
     let mut hw_command = Publisher::<T::Command>::new(bus, T::HW_COMMAND, &qos)?;
-    let mut state = Publisher::<T::State>::new(bus, T::STATE, &qos)?;
+    // Controllers may wake on the re-published state.
+    let mut state = Publisher::<T::State>::new(bus, T::STATE, &qos.waking())?;
     let mut status = Publisher::<DriverStatus>::new(bus, T::STATUS, &qos)?;
     let mut service = ServiceLoop::new(
         bus,
@@ -171,7 +179,9 @@ pub fn run_driver<T: DriverTopics>(
             ..LoopConfig::default()
         },
     )?;
-    let status_every = (status_period.as_secs_f64() / period.as_secs_f64()).round().max(1.0) as u64;
+    let status_every = (status_period.as_secs_f64() / period.as_secs_f64())
+        .round()
+        .max(1.0) as u64;
     let mut values = Vec::with_capacity(8);
     let mut measured = Vec::with_capacity(8);
     service.run_periodic(|cycle| {
@@ -246,7 +256,12 @@ mod tests {
         let m = status_message(&counters);
         assert_eq!(m.mode(), Some(DriverMode::SafeStop));
         assert_eq!(
-            (m.commands_received, m.limit_violations, m.stale_cycles, m.safe_stop_cycles),
+            (
+                m.commands_received,
+                m.limit_violations,
+                m.stale_cycles,
+                m.safe_stop_cycles
+            ),
             (13, 5, 7, 11)
         );
         assert_eq!((m.hardware_ready, m.max_command_gap_ns), (1, 17));
