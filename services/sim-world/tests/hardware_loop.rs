@@ -17,8 +17,8 @@ use motm_bus::{
 use motm_core::command_limiter::AxisLimits;
 use motm_core::{BASE_JOINTS, Robot};
 use motm_msgs::{
-    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, DriverMode, DriverStatus, JointState,
-    Message, SafeStop, SafeStopReason, SimOutcome, SimTruth, services,
+    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, DriverMode, DriverStatus, Heartbeat,
+    JointState, Message, SafeStop, SafeStopReason, SimOutcome, SimTruth, services,
 };
 
 /// Longest wait for anything (generous: the machine is shared and noisy).
@@ -28,21 +28,30 @@ const COMMAND_PERIOD: Duration = Duration::from_millis(5);
 /// The arm joint this test moves (the Panda's wrist: velocity 2.61, acceleration 20, jerk 10000).
 const JOINT: usize = 6;
 
-/// The service binaries: next to sim-world, built with cargo first if missing.
+/// The processes this test starts.
+const PROCESSES: [&str; 3] = ["sim-world", "panda-driver", "ld60-driver"];
+
+/// The service binaries, next to sim-world. Under cargo (`$CARGO` set) the drivers are built
+/// first, so that the test never runs stale driver binaries (a no-op when they are fresh).
 fn binaries() -> [PathBuf; 3] {
     let sim = PathBuf::from(env!("CARGO_BIN_EXE_sim-world"));
     let dir = sim.parent().unwrap().to_path_buf();
-    let drivers = [dir.join("panda-driver"), dir.join("ld60-driver")];
-    if drivers.iter().any(|d| !d.is_file()) {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    if let Ok(cargo) = std::env::var("CARGO") {
         eprintln!("building panda-driver and ld60-driver with {cargo}");
-        let status = Command::new(cargo)
-            .args(["build", "-p", "motm-panda-driver", "-p", "motm-ld60-driver"])
-            .status()
-            .unwrap();
-        assert!(status.success(), "building the drivers failed");
+        let mut build = Command::new(cargo);
+        build.args(["build", "-p", "motm-panda-driver", "-p", "motm-ld60-driver"]);
+        if !cfg!(debug_assertions) {
+            build.arg("--release");
+        }
+        assert!(
+            build.status().unwrap().success(),
+            "building the drivers failed"
+        );
     }
-    let [panda, ld60] = drivers;
+    let [panda, ld60] = [dir.join("panda-driver"), dir.join("ld60-driver")];
+    for binary in [&panda, &ld60] {
+        assert!(binary.is_file(), "{} is missing", binary.display());
+    }
     [sim, panda, ld60]
 }
 
@@ -305,6 +314,10 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
             arm_peak: 0.0,
             sent: 0,
         };
+        let mut heartbeats: Vec<Latest<Heartbeat>> = PROCESSES
+            .iter()
+            .map(|p| Latest::new(&bus, &services::heartbeat(p), &qos).unwrap())
+            .collect();
         h.raise_safe_stop(false);
         let config_arg = config.to_string_lossy().into_owned();
         let common = ["--config-dir", config_arg.as_str()];
@@ -447,6 +460,19 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
         );
         let truth = h.truth.get().unwrap();
         assert_eq!(truth.outcome(), Some(SimOutcome::Running));
+        // Loop statistics, for the record (timing is not asserted on this shared machine).
+        for (process, beat) in PROCESSES.iter().zip(&mut heartbeats) {
+            beat.update().unwrap();
+            let b = beat.get().unwrap();
+            eprintln!(
+                "{process}: {} cycles, {} deadline misses, p99 {} us, max {} us",
+                b.cycles,
+                b.deadline_misses,
+                b.p99_cycle_ns / 1000,
+                b.max_cycle_ns / 1000
+            );
+        }
+        eprintln!("sim-world: {} catch-up cycles", truth.catch_up_cycles);
         assert!(truth.sim_time > 2.0);
         processes.assert_running();
     }

@@ -351,7 +351,8 @@ impl LimitMonitor {
                 },
             ];
             for (worst, r) in self.worst.iter_mut().zip(ratios) {
-                if !(r <= 1.0 + self.tolerance) {
+                // A NaN ratio (non-finite output) is a violation too.
+                if r.is_nan() || r > 1.0 + self.tolerance {
                     broken = true;
                 }
                 *worst = worst.max(r);

@@ -397,7 +397,7 @@ pub fn run_trial(
         meter.push(truth.tool_pose.translation.vector);
         if let Some(trace) = trace
             .as_mut()
-            .filter(|_| cycle % config.trace_every.max(1) == 0)
+            .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))
         {
             trace.base.push((truth.base_pose.x, truth.base_pose.y));
             let tool = truth.tool_pose.translation.vector;
