@@ -135,8 +135,10 @@ impl Mission {
         if let Some(next) = self.next_task() {
             return next.position;
         }
-        let from = if self.current > 0 {
-            self.tasks[self.current - 1].position
+        // Once every task is done the "current" target is the last one.
+        let index = self.current.min(self.tasks.len().saturating_sub(1));
+        let from = if index > 0 {
+            self.tasks[index - 1].position
         } else {
             self.start
         };

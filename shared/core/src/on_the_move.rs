@@ -14,7 +14,11 @@
 //!   while carrying to a place or pressing a button.
 //! - **Tool state fed back to the reacher** is the previous cycle's commanded twist and
 //!   acceleration (the smoothest replanning; see [`crate::reacher::ToolState`]).
-//! - **e_t** for the QP's 1/e_t weights is the tool's distance to the current target.
+//! - **e_t** for the QP's 1/e_t weights is the tool's distance to the current target, capped at
+//!   [`OnTheMoveConfig::max_position_error`].
+//! - **Twist rate limit.** The twist sent to the QP changes by at most
+//!   [`TwistRateLimit`] per second, so hand-overs (reacher → final phase → next task) do not jerk
+//!   the tool.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
 
 use nalgebra::{Vector3, Vector6};
@@ -33,8 +37,45 @@ use crate::resolver::{RedundancyResolver, ResolveStatus, ResolverConfig};
 use crate::robot::Robot;
 use crate::types::{BaseVelocity, GripperCommand, TargetEstimate, TaskProgress, Twist};
 
+/// Limits on how fast the commanded tool twist may change.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TwistRateLimit {
+    /// Largest change of the linear velocity per second, m/s².
+    pub linear_acceleration: f64,
+    /// Largest change of the angular velocity per second, rad/s².
+    pub angular_acceleration: f64,
+}
+
+impl Default for TwistRateLimit {
+    fn default() -> Self {
+        Self {
+            linear_acceleration: 2.0,
+            angular_acceleration: 4.0,
+        }
+    }
+}
+
+impl TwistRateLimit {
+    /// `wanted`, moved from `last` by at most the allowed change in `dt` (direction kept).
+    pub fn apply(&self, last: &Twist, wanted: &Twist, dt: f64) -> Twist {
+        let change = wanted - last;
+        let linear = change
+            .fixed_rows::<3>(0)
+            .into_owned()
+            .cap_magnitude(self.linear_acceleration * dt);
+        let angular = change
+            .fixed_rows::<3>(3)
+            .into_owned()
+            .cap_magnitude(self.angular_acceleration * dt);
+        last + Twist::new(
+            linear.x, linear.y, linear.z, angular.x, angular.y, angular.z,
+        )
+    }
+}
+
 /// Every tunable of the composed MotM controller, by module. Every key is optional.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OnTheMoveConfig {
     /// Mission sequencing.
@@ -47,6 +88,27 @@ pub struct OnTheMoveConfig {
     pub final_phase: FinalPhaseConfig,
     /// Redundancy-resolution QP.
     pub resolver: ResolverConfig,
+    /// Rate limit on the tool twist sent to the QP (smooths hand-overs between the reacher and
+    /// the final phase, and between tasks).
+    pub twist_rate: TwistRateLimit,
+    /// Cap on e_t in the QP's 1/e_t weights, m. MotM's twists come from trajectories that must
+    /// be followed, so the slack must stay expensive even when the target is metres away;
+    /// the cap also keeps the weights from jumping when a new task starts.
+    pub max_position_error: f64,
+}
+
+impl Default for OnTheMoveConfig {
+    fn default() -> Self {
+        Self {
+            mission: MissionConfig::default(),
+            base: BaseControllerConfig::default(),
+            reacher: ReacherConfig::default(),
+            final_phase: FinalPhaseConfig::default(),
+            resolver: ResolverConfig::default(),
+            twist_rate: TwistRateLimit::default(),
+            max_position_error: 0.2,
+        }
+    }
 }
 
 /// What the controller reads each cycle.
@@ -203,8 +265,14 @@ impl OnTheMove {
     pub fn step(&mut self, input: &OnTheMoveInput<'_>) -> OnTheMoveOutput {
         let task_index = self.mission.task_index();
         let phase = self.mission.phase();
-        let Some(task) = self.mission.current_task().copied() else {
-            return self.hold(task_index, Phase::Complete);
+        // After the last task the base drives on to the run-out point with the arm back at its
+        // ready pose, so the robot does not stop dead at the drop.
+        let (task, base_task_index) = match self.mission.current_task() {
+            Some(task) => (*task, task_index),
+            None => match self.mission.tasks().last() {
+                Some(last) => (*last, task_index - 1),
+                None => return self.hold(task_index, Phase::Complete),
+            },
         };
         let finite = input.arm_q.iter().all(|q| q.is_finite())
             && input.arm_q.len() == self.robot.arm_dof()
@@ -221,7 +289,7 @@ impl OnTheMove {
         }
         let next = self.mission.next_waypoint(&task.position);
         let Ok(base_out) = self.base.step(&BaseControllerInput {
-            task_index,
+            task_index: base_task_index,
             base: input.base,
             target: input.target,
             next_target: next,
@@ -286,6 +354,10 @@ impl OnTheMove {
                 )
             }
         };
+        let twist = self
+            .config
+            .twist_rate
+            .apply(&self.last_twist, &twist, input.dt);
         self.last_twist = twist;
 
         let resolved = self.resolver.resolve_motm(
@@ -293,7 +365,7 @@ impl OnTheMove {
             &input.base,
             input.arm_q,
             twist,
-            tool_to_target,
+            tool_to_target.min(self.config.max_position_error),
             Some(base_out.command),
         );
         let status = self.mission.step(tool_to_target, progress);

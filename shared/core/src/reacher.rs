@@ -66,6 +66,9 @@ pub struct ReacherConfig {
     pub min_base_speed: f64,
     /// Gain of the proportional correction toward the ready pose while holding, 1/s.
     pub hold_gain: f64,
+    /// Largest speed of the holding correction, m/s: after a task the tool returns to the ready
+    /// pose at most this fast instead of jumping back with the full gain.
+    pub hold_max_speed: f64,
     /// Symmetry of the object about the vertical, rad (π/2 for a cube). When the object's yaw is
     /// known, the gripper yaw is the object's yaw plus the multiple of this closest to the
     /// gripper's current yaw.
@@ -80,6 +83,7 @@ impl Default for ReacherConfig {
             min_duration: 0.2,
             min_base_speed: 0.05,
             hold_gain: 2.0,
+            hold_max_speed: 0.25,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
         }
     }
@@ -97,6 +101,7 @@ impl ReacherConfig {
             ("min_duration", self.min_duration > 0.0),
             ("min_base_speed", self.min_base_speed > 0.0),
             ("hold_gain", self.hold_gain >= 0.0),
+            ("hold_max_speed", self.hold_max_speed > 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
         ];
         for (key, ok) in checks {
@@ -340,7 +345,7 @@ impl Reacher {
         let rotation_error = (ready.rotation * input.tool.pose.rotation.inverse()).scaled_axis();
         ReacherOutput {
             twist: stack(
-                &(carried + position_error * gain),
+                &(carried + (position_error * gain).cap_magnitude(self.config.hold_max_speed)),
                 &(yaw_rate + rotation_error * gain),
             ),
             acceleration: Vector6::zeros(),

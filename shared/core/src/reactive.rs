@@ -13,6 +13,9 @@
 //!   v/k. Each stage aims at the target predicted `1/servo_gain` ahead (lead compensation), which
 //!   removes the steady lag without changing the holistic law itself.
 //! - **Orientation.** Top-down, keeping the tool's current yaw (the cube's yaw is not measured).
+//! - **Base stand-off.** The base does not drive closer than `base_standoff` to the target
+//!   (the holistic law alone would run it into the platform): its forward speed toward the
+//!   target is capped at the speed from which it can still stop there.
 //! - **Closing** ends when the fingers reach `closed_opening` or after `closing_timeout`.
 
 use nalgebra::{Isometry3, Translation3, Vector3};
@@ -32,7 +35,8 @@ use crate::types::{BaseVelocity, GripperCommand, TargetEstimate};
 pub struct ReactiveConfig {
     /// The holistic controller.
     pub holistic: HolisticConfig,
-    /// Height of the pre-grasp point above the cube centre, m.
+    /// Height of the pre-grasp point above the cube centre, m: high enough that the fingertips
+    /// (45 mm below the tool point) clear the cube top on the way in.
     pub approach_height: f64,
     /// Height of the waypoint above the grasp point after closing, m.
     pub lift_height: f64,
@@ -46,19 +50,32 @@ pub struct ReactiveConfig {
     pub opening_time: f64,
     /// How far below the button top to push, m.
     pub press_depth: f64,
+    /// Closest the base centre may drive toward the current target horizontally, m. The
+    /// holistic law has no obstacle model and would drive the base into the platform; inside
+    /// this distance its forward speed toward the target is clamped to zero and the arm reaches.
+    pub base_standoff: f64,
+    /// Half-width of the strip ahead of the base in which a platform counts as in its path, m
+    /// (half the base width plus half a platform plus a margin).
+    pub base_corridor: f64,
+    /// Largest base forward speed, m/s: the trial's v_F, so every method has the same top speed
+    /// (the holistic law alone would drive Frankie's base at its 1.2 m/s limit).
+    pub max_base_speed: f64,
 }
 
 impl Default for ReactiveConfig {
     fn default() -> Self {
         Self {
             holistic: HolisticConfig::default(),
-            approach_height: 0.05,
+            approach_height: 0.1,
             lift_height: 0.15,
             release_height: 0.1,
             closed_opening: 0.032,
             closing_timeout: 1.0,
             opening_time: 0.5,
             press_depth: 0.01,
+            base_standoff: 0.7,
+            base_corridor: 0.55,
+            max_base_speed: 0.3,
         }
     }
 }
@@ -124,6 +141,8 @@ pub struct ReactiveBaseline {
     /// The grasp point and the held pose of the lift waypoint, fixed when the fingers close.
     anchor: Option<Vector3<f64>>,
     gripper: GripperCommand,
+    /// The base's forward acceleration limit, m/s² (from the model).
+    base_deceleration: f64,
 }
 
 impl ReactiveBaseline {
@@ -135,6 +154,7 @@ impl ReactiveBaseline {
             ReactiveStage::Approach
         };
         Self {
+            base_deceleration: robot.limits()[1].acceleration,
             controller: HolisticController::new(robot.clone(), config.holistic.clone()),
             config,
             robot,
@@ -197,6 +217,28 @@ impl ReactiveBaseline {
         }
     }
 
+    /// Caps the forward speed so the base can still stop `base_standoff` short of any pick
+    /// platform (earlier or current) that lies ahead in its path (within `base_corridor` of its
+    /// heading line).
+    fn clamp_forward_speed(&self, base: &BasePose, v: f64) -> f64 {
+        let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
+        let from = nalgebra::Vector2::new(base.x, base.y);
+        let last = (self.task + 1).min(self.tasks.len());
+        let room = self.tasks[..last]
+            .iter()
+            .filter(|t| t.kind == TaskKind::Pick)
+            .filter_map(|t| {
+                let offset = t.position.xy() - from;
+                let along = offset.dot(&heading);
+                let beside = (offset - heading * along).norm();
+                (along > 0.0 && beside < self.config.base_corridor)
+                    .then_some((along - self.config.base_standoff).max(0.0))
+            })
+            .fold(f64::INFINITY, f64::min);
+        let stoppable = (2.0 * self.base_deceleration * room).sqrt();
+        v.clamp(-stoppable, stoppable)
+    }
+
     /// One control cycle.
     pub fn step(&mut self, input: &ReactiveInput<'_>) -> ReactiveOutput {
         let Some(task) = self.current_task().copied() else {
@@ -211,6 +253,22 @@ impl ReactiveBaseline {
             arm_q: input.arm_q,
             target,
         });
+        // Speed caps scale the whole command (base and arm alike), so the tool still moves along
+        // the direction the QP chose instead of the arm assuming a base motion that is cut.
+        let allowed = self
+            .clamp_forward_speed(&input.base, out.base.v)
+            .abs()
+            .min(self.config.max_base_speed);
+        let scale = if out.base.v.abs() > allowed {
+            allowed / out.base.v.abs()
+        } else {
+            1.0
+        };
+        let base = BaseVelocity {
+            v: out.base.v * scale,
+            omega: out.base.omega * scale,
+        };
+        let arm_qd: Vec<f64> = out.arm_qd.iter().map(|qd| qd * scale).collect();
         let elapsed = input.t - self.stage_start;
         match (task.kind, self.stage) {
             (_, ReactiveStage::Approach) if out.arrived => {
@@ -247,8 +305,8 @@ impl ReactiveBaseline {
             self.gripper = GripperCommand::Close;
         }
         ReactiveOutput {
-            base: out.base,
-            arm_qd: out.arm_qd,
+            base,
+            arm_qd,
             gripper: self.gripper,
             stage: self.stage,
             task_index: self.task,

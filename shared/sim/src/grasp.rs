@@ -39,7 +39,8 @@ pub struct GraspConfig {
     pub yaw_tolerance: f64,
     /// A closure that starts with a free cube centre within this distance of the tool point and
     /// ends empty is a missed grasp, m. Closures far from any cube (e.g. to press a button with
-    /// the fingertips together) are not grasp attempts.
+    /// the fingertips together) are not grasp attempts. 0.3 m: a gripper that closes where it
+    /// expected a cube that has since moved (up to 0.3 m at 3 cm/s in 10 s) has missed it.
     pub attempt_distance: f64,
     /// Opening beyond the held width at which a held cube is released, m.
     pub release_clearance: f64,
@@ -51,7 +52,7 @@ impl Default for GraspConfig {
             lateral_tolerance: 0.015,
             min_height_overlap: 0.008,
             yaw_tolerance: 0.6,
-            attempt_distance: 0.05,
+            attempt_distance: 0.3,
             release_clearance: 0.002,
         }
     }

@@ -75,6 +75,10 @@ impl Default for RunnerConfig {
     }
 }
 
+/// e_t used in the QP's 1/e_t weights when tracking the planning baseline's EE twist: small, so
+/// the slack is expensive and the planned twist is followed.
+const PLANNING_POSITION_ERROR: f64 = 0.02;
+
 /// A method's controller, stepped at the control rate.
 enum Controller {
     /// MotM.
@@ -237,11 +241,15 @@ pub fn run_trial(
             tasks.clone(),
             Vector3::new(start.x, start.y, 0.0),
         ))),
-        Method::Reactive => Controller::Reactive(Box::new(ReactiveBaseline::new(
-            robot.clone(),
-            config.reactive.clone(),
-            tasks.clone(),
-        ))),
+        Method::Reactive => {
+            let mut reactive = config.reactive.clone();
+            reactive.max_base_speed = scenario.base_speed;
+            Controller::Reactive(Box::new(ReactiveBaseline::new(
+                robot.clone(),
+                reactive,
+                tasks.clone(),
+            )))
+        }
         Method::Planning => {
             let [object] = scenario.objects.as_slice() else {
                 return Err(format!(
@@ -364,7 +372,7 @@ pub fn run_trial(
                     &sensors.base_pose,
                     &sensors.arm_q,
                     plan.gripper_twist,
-                    1.0,
+                    PLANNING_POSITION_ERROR,
                     Some(plan.base),
                 );
                 let gripper = if plan.progress == TaskProgress::Done {
