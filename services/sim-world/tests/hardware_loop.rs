@@ -17,8 +17,9 @@ use motm_bus::{
 use motm_core::command_limiter::AxisLimits;
 use motm_core::{BASE_JOINTS, Robot};
 use motm_msgs::{
-    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, DriverMode, DriverStatus, Heartbeat,
-    JointState, Message, SafeStop, SafeStopReason, SimOutcome, SimTruth, services,
+    ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, CAMERA_HEIGHT, CAMERA_WIDTH,
+    CameraImage, DriverMode, DriverStatus, Heartbeat, JointState, Message, SafeStop,
+    SafeStopReason, SimOutcome, SimTruth, services,
 };
 
 /// Longest wait for anything (generous: the machine is shared and noisy).
@@ -183,6 +184,10 @@ struct Harness {
     arm_peak: f64,
     /// Commands sent (arm and base each).
     sent: u64,
+    camera: Subscriber<CameraImage>,
+    /// Camera frames received, and the stamp of the last one.
+    frames: u64,
+    last_frame_ns: u64,
 }
 
 impl Harness {
@@ -192,6 +197,19 @@ impl Harness {
             let v = &c.velocity[..c.joint_count as usize];
             self.arm_peak = self.arm_peak.max(v[JOINT].abs());
             self.arm_check.push(c.header.seq, v);
+        }
+        while let Some(image) = self.camera.receive().unwrap() {
+            assert_eq!(
+                (image.width, image.height),
+                (CAMERA_WIDTH as u32, CAMERA_HEIGHT as u32)
+            );
+            assert!(
+                image.header.stamp_ns > self.last_frame_ns,
+                "frames in order"
+            );
+            assert!(image.pixels.iter().any(|&p| p != 0), "a rendered image");
+            self.last_frame_ns = image.header.stamp_ns;
+            self.frames += 1;
         }
         while let Some(c) = self.hw_base.receive().unwrap() {
             self.base_check.push(c.header.seq, &[c.v, c.omega]);
@@ -313,6 +331,9 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
             base_check: StreamCheck::new(base_limits, 0.02),
             arm_peak: 0.0,
             sent: 0,
+            camera: Subscriber::new(&bus, services::CAMERA_IMAGE, &Qos::large()).unwrap(),
+            frames: 0,
+            last_frame_ns: 0,
         };
         let mut heartbeats: Vec<Latest<Heartbeat>> = PROCESSES
             .iter()
@@ -460,6 +481,13 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
         );
         let truth = h.truth.get().unwrap();
         assert_eq!(truth.outcome(), Some(SimOutcome::Running));
+        // Camera frames at 30 Hz for the whole run (a loaded machine may drop a few).
+        assert!(
+            h.frames as f64 > 0.5 * 30.0 * truth.sim_time,
+            "{} frames in {} s",
+            h.frames,
+            truth.sim_time
+        );
         // Loop statistics, for the record (timing is not asserted on this shared machine).
         for (process, beat) in PROCESSES.iter().zip(&mut heartbeats) {
             beat.update().unwrap();
