@@ -347,8 +347,13 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
             &[&common[..], &["--scenario", "exp1-dynamic"]].concat(),
             &prefix,
         );
-        processes.spawn(&panda_driver, &common, &prefix);
-        processes.spawn(&ld60_driver, &common, &prefix);
+        let driver_args = [
+            &common[..],
+            &["--scenario", "exp1-dynamic", "--control-rate", "200"],
+        ]
+        .concat();
+        processes.spawn(&panda_driver, &driver_args, &prefix);
+        processes.spawn(&ld60_driver, &driver_args, &prefix);
 
         // Up: both drivers see the hardware, the world runs.
         h.wait_for("the drivers and the world", |h| {
@@ -510,4 +515,43 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
     // SAFETY: every process of this prefix has exited and the test's bus is dropped.
     unsafe { remove_domain(&ipc) }.unwrap();
     assert_eq!(shared_memory_entries(&ipc).unwrap(), Vec::<PathBuf>::new());
+}
+
+#[test]
+fn bad_input_exits_with_code_2_naming_the_culprit() {
+    let [sim_world, panda_driver, ld60_driver] = binaries();
+    let cases: [(&Path, &[&str], &str); 5] = [
+        (
+            &sim_world,
+            &["--scenario", "no-such-scenario"],
+            "no-such-scenario",
+        ),
+        (&sim_world, &["--rate", "0"], "--rate"),
+        (&sim_world, &["--robot", "fetch"], "--robot fetch"),
+        (
+            &panda_driver,
+            &["--robot", "no-such-robot"],
+            "no-such-robot",
+        ),
+        (&ld60_driver, &["--stale-periods", "0"], "--stale-periods"),
+    ];
+    for (binary, args, culprit) in cases {
+        let out = Command::new(binary)
+            .args(args)
+            .env(PREFIX_ENV, format!("motmt{}_bad_", std::process::id()))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{} {args:?}: {stderr}",
+            binary.display()
+        );
+        assert!(
+            stderr.contains(culprit),
+            "{} {args:?}: {stderr}",
+            binary.display()
+        );
+    }
 }

@@ -20,6 +20,11 @@ use motm_core::Robot;
 use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig, LimiterMode};
 use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverConfig};
 use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
+use motm_sim::Scenario;
+use motm_sim::sim_world::scenario_path;
+
+/// Robot used when neither `--robot` nor `--scenario` names one.
+pub const DEFAULT_ROBOT: &str = "frankie";
 
 /// Exit code for bad input (flags, config, robot model).
 pub const EXIT_BAD_INPUT: u8 = 2;
@@ -40,15 +45,19 @@ pub struct DriverArgs {
     /// Folder holding robots/ and scenarios/ (default: $MOTM_CONFIG_DIR, ./config, or the source tree's config/).
     #[arg(long)]
     pub config_dir: Option<PathBuf>,
-    /// Robot model (config/robots/<NAME>.toml).
-    #[arg(long, default_value = "frankie")]
-    pub robot: String,
+    /// Robot model (config/robots/<NAME>.toml); default: the scenario's robot, else frankie.
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Scenario file (TOML) or name in `<config>/scenarios/`: only its robot is used.
+    #[arg(long)]
+    pub scenario: Option<String>,
     /// Driver loop rate, Hz (default: the driver's own).
     #[arg(long)]
     pub rate: Option<f64>,
-    /// Rate of the incoming command stream (the control rate), Hz: sets the staleness clock.
+    /// Rate of the incoming command stream (the stack's control rate), Hz: sets the staleness
+    /// clock.
     #[arg(long, default_value_t = 200.0)]
-    pub command_rate: f64,
+    pub control_rate: f64,
     /// A command older than this many command periods is stale: the driver ramps to zero.
     #[arg(long, default_value_t = CommandLimiterConfig::default().stale_periods)]
     pub stale_periods: u32,
@@ -64,10 +73,28 @@ pub struct DriverArgs {
 }
 
 impl DriverArgs {
-    /// Loads the robot model named by `--robot` from the config folder.
+    /// Loads the robot model: `--robot`, else the robot of `--scenario`, else frankie. A
+    /// `--robot` that is not the scenario's robot is an error.
     pub fn load_robot(&self) -> Result<Robot, String> {
         let dir = config_dir::resolve(self.config_dir.clone());
-        Robot::load(&dir, &self.robot).map_err(|e| e.to_string())
+        let from_scenario = match &self.scenario {
+            Some(name) => {
+                let path = scenario_path(&dir, name);
+                Some(Scenario::from_file(&path).map_err(|e| e.to_string())?.robot)
+            }
+            None => None,
+        };
+        let name = match (&self.robot, from_scenario) {
+            (Some(robot), Some(scenario_robot)) if *robot != scenario_robot => {
+                return Err(format!(
+                    "--robot {robot}: the scenario is for robot '{scenario_robot}'"
+                ));
+            }
+            (Some(robot), _) => robot.clone(),
+            (None, Some(scenario_robot)) => scenario_robot,
+            (None, None) => DEFAULT_ROBOT.to_owned(),
+        };
+        Robot::load(&dir, &name).map_err(|e| e.to_string())
     }
 
     /// The driver period from `--rate` or `default_rate_hz`, checked.
@@ -83,14 +110,14 @@ impl DriverArgs {
         limits: Vec<AxisLimits>,
         period: Duration,
     ) -> Result<VelocityDriver, String> {
-        positive_rate("--command-rate", self.command_rate)?;
+        positive_rate("--control-rate", self.control_rate)?;
         positive_rate("--status-rate", self.status_rate)?;
         if self.stale_periods == 0 {
             return Err("--stale-periods: must be at least 1".into());
         }
         let config = VelocityDriverConfig {
             limiter: CommandLimiterConfig {
-                command_period: 1.0 / self.command_rate,
+                command_period: 1.0 / self.control_rate,
                 stale_periods: self.stale_periods,
                 ..CommandLimiterConfig::default()
             },
@@ -278,12 +305,39 @@ mod tests {
         }
         let cli = Cli::try_parse_from(["d", "--rate", "0"]).unwrap();
         assert!(cli.args.period(1000.0).unwrap_err().contains("--rate"));
-        let cli = Cli::try_parse_from(["d", "--command-rate", "-1"]).unwrap();
+        let cli = Cli::try_parse_from(["d", "--control-rate=-1"]).unwrap();
         let period = cli.args.period(1000.0).unwrap();
         assert_eq!(period, Duration::from_millis(1));
         let err = cli.args.driver(vec![], period).unwrap_err();
-        assert!(err.contains("--command-rate"), "{err}");
+        assert!(err.contains("--control-rate"), "{err}");
         let cli = Cli::try_parse_from(["d", "--robot", "nope"]).unwrap();
         assert!(cli.args.load_robot().unwrap_err().contains("nope"));
+    }
+
+    #[test]
+    fn the_robot_comes_from_the_flag_or_the_scenario() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: DriverArgs,
+        }
+        let parse = |args: &[&str]| Cli::try_parse_from([&["d"], args].concat()).unwrap().args;
+        assert_eq!(parse(&[]).load_robot().unwrap().config.name, "frankie");
+        let fetch = parse(&["--scenario", "platforms-fetch"])
+            .load_robot()
+            .unwrap();
+        assert_eq!(fetch.config.name, "fetch");
+        let err = parse(&["--scenario", "platforms-fetch", "--robot", "frankie"])
+            .load_robot()
+            .unwrap_err();
+        assert!(
+            err.contains("--robot frankie") && err.contains("fetch"),
+            "{err}"
+        );
+        let err = parse(&["--scenario", "no-such-scenario"])
+            .load_robot()
+            .unwrap_err();
+        assert!(err.contains("no-such-scenario"), "{err}");
     }
 }
