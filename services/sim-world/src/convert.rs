@@ -122,7 +122,8 @@ mod tests {
             1,
             &RunnerConfig::default(),
             SimWorldConfig::default(),
-        );
+        )
+        .unwrap();
         let qd = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1];
         let mut frame = None;
         for _ in 0..100 {

@@ -66,15 +66,8 @@ struct Cli {
     max_catch_up: u64,
 }
 
-/// Everything the world needs, checked.
-struct Setup {
-    robot: Robot,
-    scenario: Scenario,
-    runner: RunnerConfig,
-    config: SimWorldConfig,
-}
-
-fn setup(cli: &Cli) -> Result<Setup, String> {
+/// Builds the world from the flags; every error is bad input.
+fn setup(cli: &Cli) -> Result<SimWorld, String> {
     let config_dir = config_dir::resolve(cli.config_dir.clone());
     let path = scenario_path(&config_dir, &cli.scenario);
     let mut scenario = Scenario::from_file(&path).map_err(|e| e.to_string())?;
@@ -114,12 +107,7 @@ fn setup(cli: &Cli) -> Result<Setup, String> {
     let config = SimWorldConfig {
         command_timeout: cli.command_timeout,
     };
-    Ok(Setup {
-        robot,
-        scenario,
-        runner,
-        config,
-    })
+    SimWorld::new(&robot, &scenario, cli.seed, &runner, config).map_err(|e| e.to_string())
 }
 
 /// Age of a message stamped `stamp_ns` at `now_ns`, s.
@@ -127,14 +115,7 @@ fn age(now_ns: u64, stamp_ns: u64) -> f64 {
     now_ns.saturating_sub(stamp_ns) as f64 * 1e-9
 }
 
-fn serve(cli: &Cli, setup: Setup) -> Result<(), BusError> {
-    let Setup {
-        robot,
-        scenario,
-        runner,
-        config,
-    } = setup;
-    let mut sim = SimWorld::new(&robot, &scenario, cli.seed, &runner, config);
+fn serve(cli: &Cli, mut sim: SimWorld) -> Result<(), BusError> {
     let bus = Bus::open("sim-world")?;
     let qos = Qos::default();
     let mut arm_in = Latest::<ArmVelocityCommand>::new(&bus, services::HW_ARM_COMMAND, &qos)?;
@@ -162,7 +143,7 @@ fn serve(cli: &Cli, setup: Setup) -> Result<(), BusError> {
     let mut steps_done = 0u64;
     let mut catch_up_cycles = 0u64;
     let mut last_status = sim.status();
-    let mut arm_qd = Vec::with_capacity(robot.arm_dof());
+    let mut arm_qd = Vec::with_capacity(sim.command().arm_qd.len());
     let report = |e: BusError| eprintln!("sim-world: {e}");
     service.run_periodic(|cycle| {
         let now = cycle.now_ns;
@@ -242,14 +223,14 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
-    let setup = match setup(&cli) {
-        Ok(setup) => setup,
+    let sim = match setup(&cli) {
+        Ok(sim) => sim,
         Err(e) => {
             eprintln!("sim-world: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
-    match serve(&cli, setup) {
+    match serve(&cli, sim) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("sim-world: {e}");

@@ -5,11 +5,14 @@
 //! [`RunnerConfig`] and seeds the camera the same way.
 //!
 //! Hardware commands that stop coming are not held forever: like the Panda's communication
-//! reflex and the LD-60's own command timeout, a command older than
-//! [`SimWorldConfig::command_timeout`] is replaced by zero velocity.
+//! reflex and the LD-60's own command timeout, once the newest command is older than
+//! [`SimWorldConfig::command_timeout`] the hardware brakes to zero velocity on its own, within
+//! the robot's velocity, acceleration and jerk limits (a [`CommandLimiter`] in its stale mode).
+//! Fresh commands pass through unchanged: limiting them is the drivers' job.
 
 use motm_core::camera::CameraConfig;
-use motm_core::{BaseVelocity, GripperCommand, Robot};
+use motm_core::command_limiter::{AxisLimits, CommandLimiter, CommandLimiterConfig, LimiterInput};
+use motm_core::{BASE_JOINTS, BaseVelocity, GripperCommand, ModelError, Robot};
 
 use crate::metrics::AccelerationMeter;
 use crate::render::{CameraFrame, PalmCamera, Scene};
@@ -95,6 +98,13 @@ pub struct HardwareInput<'a> {
     pub gripper: Option<GripperCommand>,
 }
 
+/// Limiter input of a hardware brake: no command, so the limiter ramps to zero.
+const BRAKE: LimiterInput<'static> = LimiterInput {
+    command: None,
+    command_age: None,
+    safe_stop: false,
+};
+
 /// The world, camera and metrics of one simulated trial. See the module documentation.
 pub struct SimWorld {
     world: World,
@@ -110,22 +120,35 @@ pub struct SimWorld {
     status: TrialStatus,
     task_time: f64,
     command: HardwareCommand,
+    arm_brake: CommandLimiter,
+    base_brake: CommandLimiter,
 }
 
 impl SimWorld {
     /// A trial of `scenario` for `robot` with `seed`, timed and measured as `runner` says.
+    /// Errors when the physics step or the robot's limits cannot drive the hardware brakes.
     pub fn new(
         robot: &Robot,
         scenario: &Scenario,
         seed: u64,
         runner: &RunnerConfig,
         config: SimWorldConfig,
-    ) -> Self {
+    ) -> Result<Self, ModelError> {
+        let limits = robot.limits();
+        let brake = |axes: Vec<AxisLimits>| {
+            CommandLimiter::new(axes, runner.physics_step, CommandLimiterConfig::default())
+        };
+        let arm_brake = brake(limits[BASE_JOINTS..].iter().map(AxisLimits::from).collect())?;
+        // Base axes in [v, omega] order; the robot's joints are [yaw (omega), forward (v)].
+        let base_brake = brake(vec![
+            AxisLimits::from(&limits[1]),
+            AxisLimits::from(&limits[0]),
+        ])?;
         let world = World::new(robot, scenario, seed);
         let control_dt = 1.0 / runner.control_rate_hz;
         let steps_per_metric = (control_dt / runner.physics_step).round().max(1.0) as u64;
         let tasks = scenario.mission_tasks().len();
-        Self {
+        Ok(Self {
             camera: palm_camera(&runner.camera, scenario, seed),
             scenes: SceneBuilder::new(&world),
             no_scene: Scene::default(),
@@ -138,8 +161,10 @@ impl SimWorld {
             status: TrialStatus::Running,
             task_time: 0.0,
             command: HardwareCommand::idle(robot.arm_dof()),
+            arm_brake,
+            base_brake,
             world,
-        }
+        })
     }
 
     /// One physics period, s.
@@ -198,13 +223,26 @@ impl SimWorld {
         match input.arm {
             Some((qd, age)) if age <= timeout && qd.len() == arm_dof => {
                 self.command.arm_qd.copy_from_slice(qd);
+                self.arm_brake.reset(qd);
             }
-            _ => self.command.arm_qd.iter_mut().for_each(|v| *v = 0.0),
+            _ => {
+                let braked = self.arm_brake.step(&BRAKE);
+                self.command.arm_qd.copy_from_slice(braked.velocity);
+            }
         }
-        self.command.base = match input.base {
-            Some((base, age)) if age <= timeout => base,
-            _ => BaseVelocity::default(),
-        };
+        match input.base {
+            Some((base, age)) if age <= timeout => {
+                self.command.base = base;
+                self.base_brake.reset(&[base.v, base.omega]);
+            }
+            _ => {
+                let braked = self.base_brake.step(&BRAKE).velocity;
+                self.command.base = BaseVelocity {
+                    v: braked[0],
+                    omega: braked[1],
+                };
+            }
+        }
         if let Some(gripper) = input.gripper {
             self.command.gripper = gripper;
         }
@@ -238,6 +276,7 @@ impl SimWorld {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use motm_core::command_limiter::LimitMonitor;
     use std::path::Path;
 
     fn setup() -> (Robot, Scenario) {
@@ -251,7 +290,8 @@ mod tests {
     fn commands_move_the_robot_stale_ones_stop_it_and_frames_come_at_the_camera_rate() {
         let (robot, scenario) = setup();
         let runner = RunnerConfig::default();
-        let mut sim = SimWorld::new(&robot, &scenario, 3, &runner, SimWorldConfig::default());
+        let mut sim =
+            SimWorld::new(&robot, &scenario, 3, &runner, SimWorldConfig::default()).unwrap();
         let qd = vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5];
         let mut frames = 0;
         let start_q = sim.sensors().arm_q[6];
@@ -275,14 +315,35 @@ mod tests {
         assert!(moved_q > 0.15 && moved_q < 0.3, "joint 7 moved {moved_q}");
         assert!(sim.truth().base_pose.x > start_x + 0.02, "the base moved");
         assert!(sim.truth().arm_qd[6] > 0.4);
-        // The same commands, now too old: the world is commanded to stand still.
-        for _ in 0..500 {
+        // The same commands, now too old: the hardware brakes to zero within the limits.
+        let limits = robot.limits();
+        let mut monitor = LimitMonitor::new(
+            &[
+                AxisLimits::from(&limits[BASE_JOINTS + 6]),
+                AxisLimits::from(&limits[1]),
+            ],
+            0.001,
+            1e-9,
+        );
+        monitor.reset(&[0.5, 0.3]);
+        let mut braking_steps = 0;
+        for _ in 0..1000 {
             sim.step(&HardwareInput {
                 arm: Some((&qd, 0.2)),
                 base: Some((BaseVelocity { v: 0.3, omega: 0.0 }, 0.2)),
                 gripper: None,
             });
+            let command = sim.command();
+            assert!(
+                !monitor.check(&[command.arm_qd[6], command.base.v]),
+                "{command:?}"
+            );
+            if command.base.v != 0.0 {
+                braking_steps += 1;
+            }
         }
+        // 0.3 m/s at 0.8 m/s²: a ramp of 375 ms, not a step.
+        assert!((370..=380).contains(&braking_steps), "{braking_steps}");
         assert_eq!(sim.command().arm_qd, vec![0.0; 7]);
         assert_eq!(sim.command().base, BaseVelocity::default());
         assert!(sim.truth().arm_qd[6].abs() < 1e-3);
@@ -299,7 +360,8 @@ mod tests {
             timeout_per_task: 0.0,
             ..RunnerConfig::default()
         };
-        let mut sim = SimWorld::new(&robot, &scenario, 3, &runner, SimWorldConfig::default());
+        let mut sim =
+            SimWorld::new(&robot, &scenario, 3, &runner, SimWorldConfig::default()).unwrap();
         let idle = HardwareInput {
             arm: None,
             base: None,
