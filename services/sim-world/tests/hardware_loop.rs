@@ -347,9 +347,18 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
             &[&common[..], &["--scenario", "exp1-dynamic"]].concat(),
             &prefix,
         );
+        // Commands go stale after 20 periods (100 ms) instead of 3, so that a test process
+        // descheduled on a loaded machine does not trip the ramp by accident.
         let driver_args = [
             &common[..],
-            &["--scenario", "exp1-dynamic", "--control-rate", "200"],
+            &[
+                "--scenario",
+                "exp1-dynamic",
+                "--control-rate",
+                "200",
+                "--stale-periods",
+                "20",
+            ],
         ]
         .concat();
         processes.spawn(&panda_driver, &driver_args, &prefix);
