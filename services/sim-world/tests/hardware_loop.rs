@@ -11,8 +11,8 @@ use std::thread::sleep;
 use std::time::{Duration, Instant};
 
 use motm_bus::{
-    Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Subscriber, monotonic_now_ns,
-    remove_domain, shared_memory_entries,
+    Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Subscriber, cleanup_dead_nodes,
+    monotonic_now_ns, remove_domain, shared_memory_entries,
 };
 use motm_core::command_limiter::AxisLimits;
 use motm_core::{BASE_JOINTS, Robot};
@@ -56,8 +56,9 @@ fn binaries() -> [PathBuf; 3] {
     [sim, panda, ld60]
 }
 
-/// Child processes that are killed if the test fails before shutting them down.
-struct Processes(Vec<(String, Child)>);
+/// Child processes of one iceoryx2 prefix. If the test fails before shutting them down, they
+/// are killed and the prefix's resources removed, so a failed run leaves nothing behind either.
+struct Processes(Vec<(String, Child)>, IpcConfig);
 
 impl Processes {
     fn spawn(&mut self, binary: &Path, args: &[&str], prefix: &str) {
@@ -91,10 +92,17 @@ impl Processes {
 
 impl Drop for Processes {
     fn drop(&mut self) {
+        if self.0.is_empty() {
+            return;
+        }
         for (_, child) in &mut self.0 {
             let _ = child.kill();
             let _ = child.wait();
         }
+        let _ = cleanup_dead_nodes(&self.1);
+        // SAFETY: every child is reaped, and the test's own bus was dropped before this guard
+        // (it is declared after it).
+        let _ = unsafe { remove_domain(&self.1) };
     }
 }
 
@@ -306,7 +314,7 @@ fn commands_reach_the_world_limited_and_stale_or_stopped_commands_ramp_to_zero()
         prefix: format!("motmt{}_hw_", std::process::id()),
     };
     let prefix = ipc.prefix.clone();
-    let mut processes = Processes(Vec::new());
+    let mut processes = Processes(Vec::new(), ipc.clone());
     {
         let bus = Bus::open_with("hw-test", &ipc).unwrap();
         // This test creates the command services first, with deep queues, so that it sees
