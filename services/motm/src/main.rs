@@ -7,6 +7,8 @@ mod experiment;
 mod kin;
 mod plots;
 mod report;
+mod run;
+mod status;
 mod trial;
 
 use std::path::PathBuf;
@@ -68,6 +70,10 @@ enum Command {
     Trial(trial::TrialArgs),
     /// Run the paper's experiments in-process and write tables and plots.
     Experiment(experiment::ExperimentArgs),
+    /// Run the multi-process stack against the simulated world and print the trial metrics.
+    Run(run::RunArgs),
+    /// Show the live process table of a running stack.
+    Status(status::StatusArgs),
 }
 
 fn main() -> ExitCode {
@@ -85,6 +91,8 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(&config_dir, &args).map_err(CliError::BadInput),
         Command::Trial(args) => trial::run(&config_dir, &args),
         Command::Experiment(args) => experiment::run(&config_dir, &args),
+        Command::Run(args) => run::run(&config_dir, &args),
+        Command::Status(args) => status::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

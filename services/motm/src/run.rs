@@ -1,0 +1,506 @@
+//! `motm run`: the deployed stack against the simulated world. It starts the supervisor (which
+//! starts every process of the stack config), waits for sim-world's verdict, prints the trial
+//! metrics as `motm trial` does plus the process table, the drivers' limit violations and the
+//! largest command gap, then stops everything and removes the run's iceoryx2 resources.
+//!
+//! Each run uses its own iceoryx2 prefix (`$MOTM_IPC_PREFIX`, or `motm<pid>_`), so runs and
+//! tests can go on side by side. The prefix is recorded in `<tmp>/motm-stacks/` while the run
+//! lasts, for `motm status`.
+
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Qos, ServiceLoop};
+use motm_msgs::{DriverStatus, Heartbeat, SimOutcome, SimTruth, SupervisorStatus, services};
+use motm_sim::Scenario;
+use motm_sim::experiment::TrialResult;
+use motm_supervisor::{StackConfig, binaries};
+use serde::Serialize;
+
+use crate::CliError;
+
+/// Arguments of `motm run`.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Stack config: a file, or a name in the config folder (`frankie`, `fetch`, `husky_ur5`).
+    #[arg(long, default_value = "frankie")]
+    pub config: String,
+    /// Scenario file or name (default: the stack config's `scenario`).
+    #[arg(long)]
+    pub scenario: Option<String>,
+    /// Base speed v_F, m/s (default: the scenario's `base_speed`).
+    #[arg(long)]
+    pub base_speed: Option<f64>,
+    /// Control rate, Hz (default: the stack config's `control_rate_hz`).
+    #[arg(long)]
+    pub rate: Option<f64>,
+    /// RNG seed (default: the stack config's `seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Give up after this much wall-clock time, s (default: twice the scenario's time limit).
+    #[arg(long)]
+    pub timeout: Option<f64>,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One process's figures, from its last heartbeat and the supervisor's table.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ProcessReport {
+    /// Process name.
+    pub name: String,
+    /// Pid of the last instance seen.
+    pub pid: u32,
+    /// Restarts by the supervisor.
+    pub restarts: u32,
+    /// Cycles of the last instance.
+    pub cycles: u64,
+    /// Deadline misses of the last instance.
+    pub deadline_misses: u64,
+    /// 99th percentile cycle time of the last instance, µs.
+    pub p99_cycle_us: f64,
+    /// Messages its bus dropped as invalid.
+    pub rejected_messages: u64,
+}
+
+/// What `motm run --json` prints.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    /// The trial metrics, as `motm trial` prints them.
+    #[serde(flatten)]
+    pub trial: TrialResult,
+    /// Scenario name.
+    pub scenario: String,
+    /// Base speed, m/s.
+    pub base_speed: f64,
+    /// Control rate, Hz.
+    pub control_rate_hz: f64,
+    /// Every supervised process plus the supervisor.
+    pub processes: Vec<ProcessReport>,
+    /// Commands that reached a driver beyond a limit (arm plus base).
+    pub limit_violations: u64,
+    /// Driver outputs that broke a limit (arm plus base; must be 0).
+    pub output_violations: u64,
+    /// Longest gap between consecutive commands at a driver, ms.
+    pub max_command_gap_ms: f64,
+    /// The run's iceoryx2 prefix.
+    pub ipc_prefix: String,
+    /// Files of the prefix left in /dev/shm or iceoryx2's folder after the run (must be 0).
+    pub stale_shm_entries: usize,
+}
+
+/// Latest samples of everything `motm run` watches.
+struct Watch {
+    truth: Latest<SimTruth>,
+    status: Latest<SupervisorStatus>,
+    arm_driver: Latest<DriverStatus>,
+    base_driver: Latest<DriverStatus>,
+    heartbeats: Vec<(String, Latest<Heartbeat>)>,
+    /// Last heartbeat seen per process (kept when the process goes away).
+    last_beats: Vec<Option<Heartbeat>>,
+}
+
+impl Watch {
+    fn new(bus: &Bus, names: &[String]) -> Result<Self, motm_bus::BusError> {
+        let qos = Qos::default();
+        Ok(Self {
+            truth: Latest::new(bus, services::SIM_TRUTH, &qos)?,
+            status: Latest::new(bus, services::SUPERVISOR_STATUS, &qos)?,
+            arm_driver: Latest::new(bus, services::ARM_DRIVER_STATUS, &qos)?,
+            base_driver: Latest::new(bus, services::BASE_DRIVER_STATUS, &qos)?,
+            heartbeats: names
+                .iter()
+                .map(|n| Ok((n.clone(), Latest::new(bus, &services::heartbeat(n), &qos)?)))
+                .collect::<Result<_, motm_bus::BusError>>()?,
+            last_beats: vec![None; names.len()],
+        })
+    }
+
+    /// Takes in everything that arrived.
+    fn update(&mut self) {
+        // A failed read keeps the previous values; the report says what was seen.
+        let _ = self.truth.update();
+        let _ = self.status.update();
+        let _ = self.arm_driver.update();
+        let _ = self.base_driver.update();
+        for ((_, beat), last) in self.heartbeats.iter_mut().zip(&mut self.last_beats) {
+            let _ = beat.update();
+            if let Some(b) = beat.get() {
+                *last = Some(*b);
+            }
+        }
+    }
+
+    /// The process table for the report.
+    fn processes(&self) -> Vec<ProcessReport> {
+        let table = self.status.get();
+        self.heartbeats
+            .iter()
+            .zip(&self.last_beats)
+            .map(|((name, _), beat)| {
+                let row = table.and_then(|t| t.processes().iter().find(|p| p.name() == name));
+                ProcessReport {
+                    name: name.clone(),
+                    pid: beat.map_or(row.map_or(0, |r| r.pid), |b| b.pid),
+                    restarts: row.map_or(0, |r| r.restarts),
+                    cycles: beat.map_or(0, |b| b.cycles),
+                    deadline_misses: beat.map_or(0, |b| b.deadline_misses),
+                    p99_cycle_us: beat.map_or(0.0, |b| b.p99_cycle_ns as f64 / 1000.0),
+                    rejected_messages: beat.map_or(0, |b| b.rejected_messages),
+                }
+            })
+            .collect()
+    }
+}
+
+/// The failure name of an outcome (as `motm trial` names it), `None` on success or running.
+fn failure_name(outcome: SimOutcome) -> Option<&'static str> {
+    match outcome {
+        SimOutcome::Running | SimOutcome::Success => None,
+        SimOutcome::KnockedOff => Some("knocked_off"),
+        SimOutcome::MissedGrasp => Some("missed_grasp"),
+        SimOutcome::DroppedOutside => Some("dropped_outside"),
+        SimOutcome::BaseCollision => Some("base_collision"),
+        SimOutcome::Timeout => Some("timeout"),
+    }
+}
+
+/// The trial metrics from sim-world's last truth (or a failure when none came).
+fn trial_result(truth: Option<&SimTruth>, failure: Option<String>, wall_s: f64) -> TrialResult {
+    let Some(t) = truth else {
+        return TrialResult {
+            success: false,
+            failure: Some(failure.unwrap_or_else(|| "no_truth_from_sim_world".into())),
+            task_time_s: 0.0,
+            mtph: 0.0,
+            ee_acc_mean: 0.0,
+            ee_acc_max: 0.0,
+            ee_acc_filter: String::new(),
+            sim_time_s: 0.0,
+            wall_time_s: wall_s,
+            round_trips_s: Vec::new(),
+        };
+    };
+    let outcome = t.outcome().unwrap_or(SimOutcome::Running);
+    let success = outcome == SimOutcome::Success && failure.is_none();
+    let failure = failure.or_else(|| match outcome {
+        SimOutcome::Running => Some("not_finished".into()),
+        other => failure_name(other).map(str::to_owned),
+    });
+    let count = (t.object_count as usize).min(t.object_placed_time.len());
+    let mut placed: Vec<f64> = t.object_placed_time[..count]
+        .iter()
+        .copied()
+        .filter(|&p| p >= 0.0)
+        .collect();
+    placed.sort_by(f64::total_cmp);
+    let round_trips_s = placed
+        .iter()
+        .scan(0.0, |last, &p| {
+            let trip = p - *last;
+            *last = p;
+            Some(trip)
+        })
+        .collect();
+    TrialResult {
+        success,
+        failure,
+        task_time_s: t.task_time,
+        mtph: if success && t.task_time > 0.0 {
+            3600.0 / t.task_time
+        } else {
+            0.0
+        },
+        ee_acc_mean: t.ee_acc_mean,
+        ee_acc_max: t.ee_acc_max,
+        ee_acc_filter: "sim-world".into(),
+        sim_time_s: t.sim_time,
+        wall_time_s: wall_s,
+        round_trips_s,
+    }
+}
+
+/// The folder where running stacks record their prefix (for `motm status`).
+pub fn registry_dir() -> PathBuf {
+    std::env::temp_dir().join("motm-stacks")
+}
+
+/// Makes sure every binary is there, building it with `$CARGO` when run through Cargo.
+fn ensure_binaries(stack: &StackConfig) -> Result<PathBuf, CliError> {
+    let dir = binaries::own_dir()
+        .map_err(|e| CliError::Failed(format!("cannot find own executable: {e}")))?;
+    let mut names = vec!["supervisor".to_string()];
+    names.extend(stack.processes.iter().map(|p| p.name.clone()));
+    let missing = binaries::missing(&dir, names.iter().map(String::as_str));
+    if missing.is_empty() {
+        return Ok(dir);
+    }
+    let package_of = |name: &str| {
+        stack
+            .process(name)
+            .map_or_else(|| format!("motm-{name}"), |p| p.package())
+    };
+    let packages: Vec<String> = missing.iter().map(|n| package_of(n)).collect();
+    if let Some(cargo) = std::env::var_os("CARGO") {
+        eprintln!(
+            "motm run: building the missing service binaries ({}) with cargo",
+            missing.join(", ")
+        );
+        if let Err(e) = binaries::cargo_build(Path::new(&cargo), &dir, &packages) {
+            eprintln!("motm run: {e}");
+        }
+    }
+    let still = binaries::missing(&dir, names.iter().map(String::as_str));
+    if still.is_empty() {
+        Ok(dir)
+    } else {
+        Err(CliError::Failed(format!(
+            "service binaries missing in {}: {} (build them with `cargo build -p {}`)",
+            dir.display(),
+            still.join(", "),
+            still
+                .iter()
+                .map(|n| package_of(n))
+                .collect::<Vec<_>>()
+                .join(" -p ")
+        )))
+    }
+}
+
+/// Sends `sig` to `pid`.
+fn signal(pid: u32, sig: libc::c_int) {
+    // SAFETY: kill(2) has no memory-safety preconditions.
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+/// Stops the supervisor (which stops the stack): SIGTERM, then SIGKILL after `grace`.
+fn stop_supervisor(supervisor: &mut Child, grace: Duration) -> Option<std::process::ExitStatus> {
+    if let Ok(Some(status)) = supervisor.try_wait() {
+        return Some(status);
+    }
+    signal(supervisor.id(), libc::SIGTERM);
+    let deadline = Instant::now() + grace;
+    while Instant::now() < deadline {
+        if let Ok(Some(status)) = supervisor.try_wait() {
+            return Some(status);
+        }
+        // Shutdown only: a short sleep between reaping attempts.
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = supervisor.kill();
+    supervisor.wait().ok()
+}
+
+/// `motm run`.
+pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
+    let bad = |e: String| CliError::BadInput(e);
+    let stack_path = StackConfig::resolve(config_dir, &args.config);
+    let stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
+    let scenario_path = motm_supervisor::scenario_path(
+        config_dir,
+        args.scenario.as_deref().unwrap_or(&stack.scenario),
+    );
+    let mut scenario = Scenario::from_file(&scenario_path).map_err(|e| bad(e.to_string()))?;
+    if let Some(v) = args.base_speed {
+        scenario.set_base_speed(v).map_err(|e| bad(e.to_string()))?;
+    }
+    let rate = args.rate.unwrap_or(stack.control_rate_hz);
+    if !(rate.is_finite() && rate > 0.0) {
+        return Err(bad(format!(
+            "--rate must be a finite number > 0, got {rate}"
+        )));
+    }
+    let timeout_s = args.timeout.unwrap_or_else(|| {
+        let limits = motm_sim::runner::RunnerConfig::default();
+        2.0 * (limits.timeout_base
+            + limits.timeout_per_task * scenario.mission_tasks().len() as f64)
+    });
+    if !(timeout_s.is_finite() && timeout_s > 0.0) {
+        return Err(bad(format!(
+            "--timeout must be a finite number > 0, got {timeout_s}"
+        )));
+    }
+    let bin_dir = ensure_binaries(&stack)?;
+
+    let ipc = IpcConfig {
+        prefix: std::env::var(motm_bus::PREFIX_ENV)
+            .unwrap_or_else(|_| format!("motm{}_", std::process::id())),
+    };
+    ipc.iceoryx2().map_err(|e| bad(e.to_string()))?;
+    let registry = registry_dir().join(&ipc.prefix);
+    let _ = std::fs::create_dir_all(registry_dir());
+    let _ = std::fs::write(&registry, format!("{}\n", std::process::id()));
+    eprintln!(
+        "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`)",
+        scenario.name, scenario.base_speed, rate, ipc.prefix, ipc.prefix
+    );
+
+    let wall = Instant::now();
+    let mut command = Command::new(binaries::binary_path(&bin_dir, "supervisor"));
+    command
+        .arg("--stack")
+        .arg(&stack_path)
+        .arg("--config-dir")
+        .arg(config_dir)
+        .arg("--scenario")
+        .arg(&scenario_path)
+        .arg("--base-speed")
+        .arg(scenario.base_speed.to_string())
+        .arg("--seed")
+        .arg(args.seed.unwrap_or(stack.seed).to_string())
+        .arg("--rate")
+        .arg(rate.to_string())
+        .arg("--bin-dir")
+        .arg(&bin_dir)
+        .env(motm_bus::PREFIX_ENV, &ipc.prefix);
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: only async-signal-safe calls between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("motm run exited"));
+            }
+            Ok(())
+        });
+    }
+    let mut supervisor = command
+        .spawn()
+        .map_err(|e| CliError::Failed(format!("cannot start the supervisor: {e}")))?;
+
+    let mut names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
+    names.push("supervisor".into());
+    let watched = (|| -> Result<_, motm_bus::BusError> {
+        let bus = Bus::open_with("motm-run", &ipc)?;
+        let mut watch = Watch::new(&bus, &names)?;
+        let mut failure = None;
+        let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(20.0))?;
+        let exit = service.run_periodic(|_| {
+            watch.update();
+            if watch
+                .truth
+                .get()
+                .and_then(SimTruth::outcome)
+                .is_some_and(|o| o != SimOutcome::Running)
+            {
+                return Flow::Stop;
+            }
+            if let Ok(Some(status)) = supervisor.try_wait() {
+                failure = Some(format!("supervisor_exited ({status})"));
+                return Flow::Stop;
+            }
+            if wall.elapsed().as_secs_f64() > timeout_s {
+                failure = Some("wall_clock_timeout".into());
+                return Flow::Stop;
+            }
+            Flow::Continue
+        })?;
+        if exit != motm_bus::LoopExit::Stopped {
+            failure = Some("interrupted".into());
+        }
+        Ok((
+            trial_result(watch.truth.get(), failure, wall.elapsed().as_secs_f64()),
+            watch.processes(),
+            [
+                watch.arm_driver.get().copied(),
+                watch.base_driver.get().copied(),
+            ],
+        ))
+    })();
+    let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
+    let supervisor_exit = stop_supervisor(&mut supervisor, grace);
+    // Every process of the prefix has exited: clean what dead ones left, then the prefix itself.
+    let _ = motm_bus::cleanup_dead_nodes(&ipc);
+    // SAFETY: the supervisor and every process it started have exited; this run's bus is dropped.
+    let _ = unsafe { motm_bus::remove_domain(&ipc) };
+    let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
+    let _ = std::fs::remove_file(&registry);
+    let (trial, processes, drivers) = watched.map_err(|e| CliError::Failed(e.to_string()))?;
+    if supervisor_exit.is_some_and(|s| !s.success()) {
+        eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
+    }
+    let drivers: Vec<DriverStatus> = drivers.into_iter().flatten().collect();
+    let report = RunReport {
+        trial,
+        scenario: scenario.name.clone(),
+        base_speed: scenario.base_speed,
+        control_rate_hz: rate,
+        processes,
+        limit_violations: drivers.iter().map(|d| d.limit_violations).sum(),
+        output_violations: drivers.iter().map(|d| d.output_violations).sum(),
+        max_command_gap_ms: drivers
+            .iter()
+            .map(|d| d.max_command_gap_ns as f64 / 1e6)
+            .fold(0.0, f64::max),
+        ipc_prefix: ipc.prefix.clone(),
+        stale_shm_entries: stale,
+    };
+    print_report(&report, args.json)?;
+    if stale > 0 {
+        return Err(CliError::Failed(format!(
+            "{stale} iceoryx2 resource(s) of prefix {} left behind",
+            ipc.prefix
+        )));
+    }
+    if report.trial.success {
+        Ok(())
+    } else {
+        Err(CliError::Failed(format!(
+            "run failed: {}",
+            report.trial.failure.clone().unwrap_or_default()
+        )))
+    }
+}
+
+/// Prints the report as JSON or text.
+fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string(report).map_err(|e| CliError::Failed(e.to_string()))?
+        );
+        return Ok(());
+    }
+    let t = &report.trial;
+    println!(
+        "{} at {:.2} m/s, {} Hz control (multi-process): {}",
+        report.scenario,
+        report.base_speed,
+        report.control_rate_hz,
+        match &t.failure {
+            None => "success".to_string(),
+            Some(reason) => format!("failed ({reason})"),
+        }
+    );
+    println!(
+        "task time {:.2} s, MTPH {:.1}, EE |a| mean {:.2} max {:.2} m/s²",
+        t.task_time_s, t.mtph, t.ee_acc_mean, t.ee_acc_max
+    );
+    println!(
+        "simulated {:.1} s in {:.2} s wall; limit violations {}, output violations {}, max command gap {:.1} ms",
+        t.sim_time_s,
+        t.wall_time_s,
+        report.limit_violations,
+        report.output_violations,
+        report.max_command_gap_ms
+    );
+    println!(
+        "{:<14} {:>8} {:>8} {:>9} {:>8} {:>10}",
+        "process", "pid", "restarts", "cycles", "misses", "p99 µs"
+    );
+    for p in &report.processes {
+        println!(
+            "{:<14} {:>8} {:>8} {:>9} {:>8} {:>10.0}",
+            p.name, p.pid, p.restarts, p.cycles, p.deadline_misses, p.p99_cycle_us
+        );
+    }
+    Ok(())
+}
