@@ -330,7 +330,9 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
 
     let ipc = IpcConfig {
         prefix: std::env::var(motm_bus::PREFIX_ENV)
-            .unwrap_or_else(|_| format!("motm{}_", std::process::id())),
+            .ok()
+            .filter(|p| !p.is_empty())
+            .unwrap_or_else(|| format!("motm{}_", std::process::id())),
     };
     ipc.iceoryx2().map_err(|e| bad(e.to_string()))?;
     let registry = registry_dir().join(&ipc.prefix);

@@ -116,7 +116,7 @@ fn run(args: &Args, watched: Watched) -> Result<(), BusError> {
             if beat.update().unwrap_or(false)
                 && let Some(b) = beat.get()
             {
-                watchdog.heartbeat(index, b.header.stamp_ns, b.deadline_misses, now);
+                watchdog.heartbeat(index, b.header.stamp_ns, b.cycles, b.deadline_misses, now);
             }
         }
         if arm.update().unwrap_or(false)

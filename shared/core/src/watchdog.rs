@@ -12,8 +12,11 @@
 //!   Heartbeats come every `heartbeat_interval_ms` (the service loop's default 100 ms); command
 //!   streams every control period, so a hung resolver is caught within three control cycles.
 //! - **Deadline misses** are cumulative counts in heartbeats: an increase by at least
-//!   `deadline_miss_threshold` between two heartbeats raises safe-stop for
-//!   `deadline_miss_hold_ms`. A count that goes down (the process restarted) is a new baseline.
+//!   `deadline_miss_threshold` between two heartbeats, and by more than `deadline_miss_fraction`
+//!   of the cycles run in between, raises safe-stop for `deadline_miss_hold_ms`. The defaults
+//!   (1 and 0) trip on any miss, as on a real-time kernel; a loaded development machine needs a
+//!   fraction (its stack config says so). A count that goes down (the process restarted) is a
+//!   new baseline.
 //! - **Priority** when several faults hold: lost heartbeat, then stale command, then deadline miss.
 
 use serde::Deserialize;
@@ -28,6 +31,8 @@ pub struct WatchdogConfig {
     pub heartbeat_interval_ms: f64,
     /// New deadline misses between two heartbeats that raise safe-stop (0 disables the check).
     pub deadline_miss_threshold: u64,
+    /// Fraction of the cycles between two heartbeats that must have missed, too (0 = any).
+    pub deadline_miss_fraction: f64,
     /// How long safe-stop stays raised after a reported deadline miss, ms.
     pub deadline_miss_hold_ms: f64,
 }
@@ -38,6 +43,7 @@ impl Default for WatchdogConfig {
             stale_cycles: 3,
             heartbeat_interval_ms: 100.0,
             deadline_miss_threshold: 1,
+            deadline_miss_fraction: 0.0,
             deadline_miss_hold_ms: 100.0,
         }
     }
@@ -56,6 +62,12 @@ impl WatchdogConfig {
             if !value.is_finite() || value <= 0.0 {
                 return Err((key, format!("must be a finite number > 0, got {value}")));
             }
+        }
+        if !(0.0..=1.0).contains(&self.deadline_miss_fraction) {
+            return Err((
+                "deadline_miss_fraction",
+                format!("must be in [0, 1], got {}", self.deadline_miss_fraction),
+            ));
         }
         Ok(())
     }
@@ -95,6 +107,7 @@ struct SourceState {
     kind: SourceKind,
     last_stamp_ns: Option<u64>,
     last_misses: Option<u64>,
+    last_cycles: u64,
     miss_until_ns: Option<u64>,
 }
 
@@ -116,16 +129,26 @@ impl Watchdog {
                     kind,
                     last_stamp_ns: None,
                     last_misses: None,
+                    last_cycles: 0,
                     miss_until_ns: None,
                 })
                 .collect(),
         }
     }
 
-    /// Records a heartbeat of source `index` stamped `stamp_ns` reporting `deadline_misses`
-    /// in total, received at `now_ns`. Older stamps than the last one are ignored.
-    pub fn heartbeat(&mut self, index: usize, stamp_ns: u64, deadline_misses: u64, now_ns: u64) {
+    /// Records a heartbeat of source `index` stamped `stamp_ns` reporting `cycles` and
+    /// `deadline_misses` in total, received at `now_ns`. Older stamps than the last one are
+    /// ignored.
+    pub fn heartbeat(
+        &mut self,
+        index: usize,
+        stamp_ns: u64,
+        cycles: u64,
+        deadline_misses: u64,
+        now_ns: u64,
+    ) {
         let threshold = self.config.deadline_miss_threshold;
+        let fraction = self.config.deadline_miss_fraction;
         let hold_ns = (self.config.deadline_miss_hold_ms * 1e6) as u64;
         let Some(source) = self.sources.get_mut(index) else {
             return;
@@ -138,9 +161,14 @@ impl Watchdog {
             && threshold > 0
             && deadline_misses >= previous + threshold
         {
-            source.miss_until_ns = Some(now_ns + hold_ns);
+            let new_misses = deadline_misses - previous;
+            let new_cycles = cycles.saturating_sub(source.last_cycles);
+            if new_misses as f64 > fraction * new_cycles as f64 {
+                source.miss_until_ns = Some(now_ns + hold_ns);
+            }
         }
         source.last_misses = Some(deadline_misses);
+        source.last_cycles = cycles;
     }
 
     /// Records a sample of command stream `index` stamped `stamp_ns`.
@@ -211,8 +239,9 @@ mod tests {
 
     /// Feeds every source a fresh sample at `t`.
     fn feed_all(w: &mut Watchdog, t: u64, misses: u64) {
-        w.heartbeat(0, t, misses, t);
-        w.heartbeat(1, t, 0, t);
+        // 100 cycles per millisecond of stamp: plenty, so any miss counts at fraction 0.
+        w.heartbeat(0, t, t / 10_000, misses, t);
+        w.heartbeat(1, t, t / 10_000, 0, t);
         w.command(2, t);
     }
 
@@ -220,8 +249,8 @@ mod tests {
     fn unseen_sources_hold_safe_stop_until_all_are_heard() {
         let mut w = watchdog();
         assert_eq!(w.verdict(0), Some(SafetyFault::HeartbeatLost(0)));
-        w.heartbeat(0, 0, 0, 0);
-        w.heartbeat(1, 0, 0, 0);
+        w.heartbeat(0, 0, 0, 0, 0);
+        w.heartbeat(1, 0, 0, 0, 0);
         assert_eq!(w.verdict(MS), Some(SafetyFault::StaleCommand(2)));
         w.command(2, MS);
         assert_eq!(w.verdict(2 * MS), None);
@@ -244,7 +273,7 @@ mod tests {
         feed_all(&mut w, 1000 * MS, 0);
         // Source 1 stops; the others go on.
         for t in (1005..=1400).step_by(5) {
-            w.heartbeat(0, t * MS, 0, t * MS);
+            w.heartbeat(0, t * MS, t, 0, t * MS);
             w.command(2, t * MS);
             let expected = (t > 1300).then_some(SafetyFault::HeartbeatLost(1));
             assert_eq!(w.verdict(t * MS), expected, "t = {t} ms");
@@ -273,12 +302,29 @@ mod tests {
         feed_all(&mut w, 1000 * MS, 0);
         feed_all(&mut w, 1010 * MS, 3);
         // An out-of-order heartbeat neither refreshes nor changes the miss baseline.
-        w.heartbeat(1, 500 * MS, 0, 1011 * MS);
+        w.heartbeat(1, 500 * MS, 0, 0, 1011 * MS);
         assert_eq!(w.verdict(1011 * MS), Some(SafetyFault::DeadlineMiss(0)));
         let faults = w.faults(1400 * MS);
         assert!(faults.contains(&SafetyFault::HeartbeatLost(1)));
         assert!(faults.contains(&SafetyFault::StaleCommand(2)));
         assert_eq!(w.verdict(1400 * MS), Some(SafetyFault::HeartbeatLost(0)));
+    }
+
+    #[test]
+    fn a_miss_fraction_tolerates_sparse_misses_but_not_dense_ones() {
+        let config = WatchdogConfig {
+            deadline_miss_threshold: 1,
+            deadline_miss_fraction: 0.25,
+            ..WatchdogConfig::default()
+        };
+        let mut w = Watchdog::new(config, &[SourceKind::Heartbeat]);
+        w.heartbeat(0, 1000 * MS, 1000, 0, 1000 * MS);
+        // 10 misses in 100 cycles: 10 %, tolerated.
+        w.heartbeat(0, 1100 * MS, 1100, 10, 1100 * MS);
+        assert_eq!(w.verdict(1101 * MS), None);
+        // 30 misses in the next 100 cycles: 30 %, safe-stop.
+        w.heartbeat(0, 1200 * MS, 1200, 40, 1200 * MS);
+        assert_eq!(w.verdict(1201 * MS), Some(SafetyFault::DeadlineMiss(0)));
     }
 
     #[test]
@@ -293,5 +339,10 @@ mod tests {
             ..WatchdogConfig::default()
         };
         assert_eq!(bad.validate().unwrap_err().0, "heartbeat_interval_ms");
+        let bad = WatchdogConfig {
+            deadline_miss_fraction: 1.5,
+            ..WatchdogConfig::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().0, "deadline_miss_fraction");
     }
 }
