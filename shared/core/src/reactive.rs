@@ -357,9 +357,7 @@ impl ReactiveBaseline {
                 };
                 self.enter(next, input.t);
             }
-            (TaskKind::Pick, ReactiveStage::Descend)
-                if stage_error < self.config.grasp_error =>
-            {
+            (TaskKind::Pick, ReactiveStage::Descend) if stage_error < self.config.grasp_error => {
                 self.gripper = GripperCommand::Close;
                 self.enter(ReactiveStage::Gripper, input.t);
             }
