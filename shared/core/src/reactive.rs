@@ -407,3 +407,124 @@ impl ReactiveBaseline {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn frankie() -> Robot {
+        let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        Robot::load(&config_dir, "frankie").expect("frankie loads")
+    }
+
+    /// Pick a cube at (2, 0, 0.45), place it at (3.2, 2.4, 0.35) (exp1's layout).
+    fn exp1_baseline() -> ReactiveBaseline {
+        let tasks = vec![
+            MissionTask {
+                kind: TaskKind::Pick,
+                item: 0,
+                position: Vector3::new(2.0, 0.0, 0.45),
+            },
+            MissionTask {
+                kind: TaskKind::Place,
+                item: 0,
+                position: Vector3::new(3.2, 2.4, 0.35),
+            },
+        ];
+        ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks)
+    }
+
+    fn step_at(
+        baseline: &mut ReactiveBaseline,
+        base: BasePose,
+        target: Vector3<f64>,
+    ) -> ReactiveOutput {
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        baseline.step(&ReactiveInput {
+            t: 0.0,
+            base,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate::fixed(target),
+        })
+    }
+
+    #[test]
+    fn descent_aims_below_the_cube_centre_inside_the_grasp_window() {
+        let mut baseline = exp1_baseline();
+        baseline.stage = ReactiveStage::Descend;
+        let cube = Vector3::new(2.0, 0.0, 0.45);
+        let goal = baseline.goal(TaskKind::Pick, &TargetEstimate::fixed(cube), 0.0);
+        let below = cube.z - goal.z;
+        assert!((below - baseline.config.grasp_depth).abs() < 1e-12);
+        // Tool point between 12 mm above and 25 mm below the centre, even at the full error.
+        assert!(below + baseline.config.grasp_error < 0.025);
+        assert!(below - baseline.config.grasp_error > -0.012);
+    }
+
+    #[test]
+    fn lead_does_not_count_toward_arrival_on_a_moving_cube() {
+        let mut baseline = exp1_baseline();
+        let base = BasePose::default();
+        let tool = baseline
+            .robot
+            .tool_pose(&base, &baseline.robot.config.ready_pose)
+            .translation
+            .vector;
+        // The cube sits right under the approach point and moves at 4.5 cm/s: the led point is
+        // 3 cm ahead, yet the tool is where the stage wants it now.
+        let cube = tool - Vector3::z() * baseline.config.approach_height;
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        let out = baseline.step(&ReactiveInput {
+            t: 0.0,
+            base,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate {
+                position: cube,
+                velocity: Vector3::new(0.045, 0.0, 0.0),
+            },
+        });
+        assert!(out.position_error >= baseline.config.holistic.arrival_error);
+        assert_eq!(out.stage, ReactiveStage::Descend);
+    }
+
+    #[test]
+    fn base_stops_short_of_the_pick_platform() {
+        let mut baseline = exp1_baseline();
+        let at_standoff = BasePose {
+            x: 2.0 - baseline.config.base_standoff,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(&mut baseline, at_standoff, Vector3::new(2.0, 0.0, 0.45));
+        assert!(out.base.v <= 1e-9, "v = {}", out.base.v);
+        // Far away the base drives at the top speed.
+        let mut far = exp1_baseline();
+        let out = step_at(&mut far, BasePose::default(), Vector3::new(2.0, 0.0, 0.45));
+        assert!((out.base.v - far.config.max_base_speed).abs() < 1e-9);
+    }
+
+    #[test]
+    fn base_turns_out_of_the_way_of_a_platform_it_has_picked_from() {
+        let mut baseline = exp1_baseline();
+        baseline.task = 1;
+        let facing_platform = BasePose {
+            x: 1.3,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(&mut baseline, facing_platform, Vector3::new(3.2, 2.4, 0.35));
+        assert_eq!(out.base.v, 0.0);
+        // The container is to the left: turn left.
+        assert!((out.base.omega - baseline.config.escape_turn_rate).abs() < 1e-12);
+        // Once the platform is out of the strip ahead, the holistic law drives again.
+        let clear = BasePose {
+            yaw: 1.0,
+            ..facing_platform
+        };
+        let out = step_at(&mut baseline, clear, Vector3::new(3.2, 2.4, 0.35));
+        assert!(out.base.v > 0.0);
+    }
+}
