@@ -80,8 +80,8 @@ pub struct ReactiveConfig {
     /// Closest the base centre may drive toward an earlier pick platform (one it is leaving),
     /// measured along its heading, m. The base may have to turn in place there to get out of
     /// the platform's way, so this is the radius its footprint sweeps when turning (Frankie's
-    /// 0.68 × 0.47 m footprint: 0.41 m half-diagonal) plus the 0.4 m platform's half-diagonal
-    /// (0.28 m) plus 6 cm.
+    /// 0.68 × 0.47 m footprint: 0.41 m half-diagonal) plus a platform's half-diagonal (0.21 m
+    /// for the simulator's 0.3 m platform) plus 13 cm for odometry drift.
     pub platform_clearance: f64,
     /// Turn rate while an earlier platform blocks the way, rad/s (a third of Frankie's 1.5 rad/s
     /// limit: a quarter turn takes about 3 s).
