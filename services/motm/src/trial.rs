@@ -28,6 +28,10 @@ pub struct TrialArgs {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Write every control cycle (true and estimated poses, target estimate, cube, gripper,
+    /// base command) to this CSV file.
+    #[arg(long)]
+    pub trace_csv: Option<PathBuf>,
 }
 
 /// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
@@ -79,15 +83,29 @@ pub fn run_spec(
 /// `motm trial`.
 pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
     let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed)?;
-    let (result, _) = run_trial(
+    let config = RunnerConfig {
+        record_cycles: args.trace_csv.is_some(),
+        ..RunnerConfig::default()
+    };
+    let (result, trace) = run_trial(
         &robot,
         &scenario,
         args.method,
         args.seed,
-        &RunnerConfig::default(),
-        false,
+        &config,
+        args.trace_csv.is_some(),
     )
     .map_err(CliError::BadInput)?;
+    if let (Some(path), Some(trace)) = (&args.trace_csv, trace) {
+        let mut csv = motm_sim::experiment::CYCLE_COLUMNS.join(",") + "\n";
+        for row in &trace.cycles {
+            let cells: Vec<String> = row.iter().map(|v| format!("{v:.5}")).collect();
+            csv += &cells.join(",");
+            csv.push('\n');
+        }
+        std::fs::write(path, csv)
+            .map_err(|e| CliError::Failed(format!("{}: {e}", path.display())))?;
+    }
     if args.json {
         println!(
             "{}",

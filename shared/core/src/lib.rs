@@ -22,6 +22,7 @@
 //! - [`types`]: value types shared by the control modules.
 //! - [`velocity_driver`]: the arm and base drivers' logic: command ages and gaps, limiter, self-check.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
+//! - [`stack`]: the control loop split into per-process cycle functions for the deployed stack.
 //! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
 //! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
 //! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
@@ -48,6 +49,7 @@ pub mod reactive;
 pub mod resolver;
 pub mod robot;
 pub mod servo;
+pub mod stack;
 pub mod types;
 pub mod velocity_driver;
 

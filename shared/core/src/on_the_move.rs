@@ -31,7 +31,7 @@ use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
 };
 use crate::kinematics::BasePose;
-use crate::mission::{Mission, MissionConfig, MissionTask, Phase, TaskKind};
+use crate::mission::{Mission, MissionConfig, MissionTask, Phase};
 use crate::reacher::{ReachMode, Reacher, ReacherConfig, ReacherInput, ToolState};
 use crate::resolver::{RedundancyResolver, ResolveStatus, ResolverConfig};
 use crate::robot::Robot;
@@ -222,12 +222,7 @@ impl OnTheMove {
 
     /// The point the arm is sent to for `task` whose target estimate is `target`.
     fn reach_target(&self, task: &MissionTask, target: &TargetEstimate) -> TargetEstimate {
-        let mut aim = *target;
-        if task.kind == TaskKind::Place {
-            aim.position.z +=
-                self.config.final_phase.drop.release_height - self.config.reacher.pregrasp_height;
-        }
-        aim
+        crate::stack::reach_aim(task.kind, target, &self.config)
     }
 
     /// An all-zero command for a cycle that cannot be computed.
@@ -255,10 +250,7 @@ impl OnTheMove {
 
     /// The gripper command outside the final phase.
     fn resting_gripper(&self) -> GripperCommand {
-        match self.mission.current_task().map(|t| t.kind) {
-            Some(TaskKind::Pick) | None => GripperCommand::Open,
-            Some(TaskKind::Place) | Some(TaskKind::PressButton) => GripperCommand::Close,
-        }
+        crate::stack::resting_gripper(self.mission.current_task().map(|t| t.kind))
     }
 
     /// One control cycle.

@@ -57,7 +57,8 @@ pub struct ReacherConfig {
     /// The reacher aims this far straight above the object (the pre-grasp point), m. The
     /// final-phase controller descends the rest, so the approach ends from above and the fingers
     /// do not sweep into the cube. It must be smaller than the final-phase hand-over distance
-    /// d_T (0.1 m), or the hand-over would never happen.
+    /// d_T (0.1 m), or the hand-over would never happen. 0.05 m: the fingertips reach 5 mm below
+    /// the tool point, so they clear a 30 mm cube's top by 3 cm at the pre-grasp point.
     pub pregrasp_height: f64,
     /// Shortest trajectory duration T, s, so that a trajectory that is almost done does not
     /// demand a huge velocity.

@@ -5,9 +5,6 @@
 //!
 //! Backends: only `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services).
 
-#[path = "../../../services/motm/src/config_dir.rs"]
-pub mod config_dir;
-
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -22,6 +19,7 @@ use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverC
 use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
 use motm_sim::Scenario;
 use motm_sim::sim_world::scenario_path;
+use motm_wire::setup::resolve_config_dir;
 
 /// Robot used when neither `--robot` nor `--scenario` names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
@@ -76,7 +74,7 @@ impl DriverArgs {
     /// Loads the robot model: `--robot`, else the robot of `--scenario`, else frankie. A
     /// `--robot` that is not the scenario's robot is an error.
     pub fn load_robot(&self) -> Result<Robot, String> {
-        let dir = config_dir::resolve(self.config_dir.clone());
+        let dir = resolve_config_dir(self.config_dir.as_deref());
         let from_scenario = match &self.scenario {
             Some(name) => {
                 let path = scenario_path(&dir, name);

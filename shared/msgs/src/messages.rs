@@ -314,6 +314,13 @@ pub struct TwistCommand {
     pub phase: u32,
     /// Twist in the world frame `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s.
     pub twist: [f64; 6],
+    /// Index of the mission task the twist was computed for (consumers drop twists of another
+    /// task).
+    pub task_index: u32,
+    /// [`TaskProgressCode`] of that task as the sending controller sees it (the final-phase
+    /// controller reports `Done` when its task's motion is complete; the reacher always
+    /// reports `Active`).
+    pub progress: u32,
 }
 
 impl TwistCommand {
@@ -321,10 +328,16 @@ impl TwistCommand {
     pub fn phase(&self) -> Option<TaskPhase> {
         TaskPhase::try_from(self.phase).ok()
     }
+
+    /// The task progress, if the code is valid.
+    pub fn progress(&self) -> Option<TaskProgressCode> {
+        TaskProgressCode::try_from(self.progress).ok()
+    }
 }
 
 message!(TwistCommand, |m, c| {
     c.code::<TaskPhase>("phase", m.phase)?;
+    c.code::<TaskProgressCode>("progress", m.progress)?;
     for i in 0..6 {
         let max = if i < 3 {
             envelope::EE_SPEED
@@ -381,6 +394,13 @@ pub struct BasePlan {
     pub closest_approach: [f64; 3],
     /// Predicted time until the target is within manipulation range, s (0 when in range).
     pub time_to_range: f64,
+    /// Base pose `[x, y, yaw]` predicted at `time_to_range` (the current pose when that is
+    /// zero), m and rad.
+    pub range_entry_pose: [f64; 3],
+    /// Index of the mission task the plan was made for (consumers drop plans of another task).
+    pub task_index: u32,
+    /// 1 once the base has gone by the target (latched until the task changes), 0 before.
+    pub passed: u32,
 }
 
 message!(BasePlan, |m, c| {
@@ -401,7 +421,20 @@ message!(BasePlan, |m, c| {
         m.time_to_range,
         0.0,
         envelope::TIME_TO_RANGE,
-    )
+    )?;
+    c.all_within(
+        "range_entry_pose",
+        &m.range_entry_pose[..2],
+        envelope::WORLD_POSITION,
+    )?;
+    c.in_range_at(
+        "range_entry_pose",
+        Some(2),
+        m.range_entry_pose[2],
+        -core::f64::consts::PI,
+        core::f64::consts::PI,
+    )?;
+    flag(c, "passed", m.passed).map(|_| ())
 });
 
 /// One palm-camera frame, RGB8, row-major, written in place in shared memory.
@@ -669,12 +702,24 @@ pub struct QpStatus {
     pub objective: f64,
     /// Norm of the task slack at the solution.
     pub slack_norm: f64,
+    /// Capture stamp of the camera image behind the target estimate this command used, ns (0
+    /// when the target was not a perception estimate): the end-to-end latency of the command
+    /// is `header.stamp_ns - image_stamp_ns`.
+    pub image_stamp_ns: u64,
 }
 
 message!(QpStatus, |m, c| {
     c.code::<QpOutcome>("outcome", m.outcome)?;
     c.in_range("objective", m.objective, f64::MIN, f64::MAX)?;
-    c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)
+    c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)?;
+    if m.image_stamp_ns > m.header.stamp_ns {
+        return Err(c.reject(
+            "image_stamp_ns",
+            None,
+            RejectReason::Inconsistent("image stamp after the status's own stamp"),
+        ));
+    }
+    Ok(())
 });
 
 code_enum!(
@@ -709,6 +754,16 @@ message!(ActiveController, |m, c| {
         .map(|_| ())
 });
 
+code_enum!(
+    /// Progress of a task's motion as its controller reports it (mirrors
+    /// `motm_core::TaskProgress`).
+    TaskProgressCode {
+        /// Still working on the task.
+        Active = 0,
+        /// The task's motion is complete.
+        Done = 1,
+    }
+);
 /// Largest number of objects a [`SimTruth`] reports.
 pub const MAX_SIM_OBJECTS: usize = 8;
 

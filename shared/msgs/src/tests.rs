@@ -277,6 +277,8 @@ fn twist_command_rejects_bad_fields() {
         controller_id: 1,
         phase: TaskPhase::Reach.into(),
         twist: [0.1, 0.0, -0.1, 0.0, 0.5, 0.0],
+        task_index: 0,
+        progress: TaskProgressCode::Done.into(),
     };
     assert_eq!(check(&ok), Ok(()));
     assert_eq!(ok.phase(), Some(TaskPhase::Reach));
@@ -293,6 +295,13 @@ fn twist_command_rejects_bad_fields() {
     assert_rejected(
         &TwistCommand { phase: 7, ..ok },
         "phase",
+        None,
+        unknown_code,
+    );
+    assert_eq!(ok.progress(), Some(TaskProgressCode::Done));
+    assert_rejected(
+        &TwistCommand { progress: 2, ..ok },
+        "progress",
         None,
         unknown_code,
     );
@@ -338,6 +347,9 @@ fn base_plan_rejects_bad_fields() {
         header: header(),
         closest_approach: [2.0, -0.5, 0.1],
         time_to_range: 1.5,
+        range_entry_pose: [1.2, -0.4, 0.05],
+        task_index: 0,
+        passed: 0,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -355,6 +367,13 @@ fn base_plan_rejects_bad_fields() {
     let mut m = ok;
     m.closest_approach[1] = f64::NAN;
     assert_rejected(&m, "closest_approach", Some(1), not_finite);
+    let mut m = ok;
+    m.range_entry_pose[0] = f64::INFINITY;
+    assert_rejected(&m, "range_entry_pose", Some(0), not_finite);
+    let mut m = ok;
+    m.range_entry_pose[2] = -4.0;
+    assert_rejected(&m, "range_entry_pose", Some(2), out_of_range);
+    assert_rejected(&BasePlan { passed: 2, ..ok }, "passed", None, unknown_code);
 }
 
 #[test]
@@ -532,6 +551,7 @@ fn qp_status_rejects_bad_fields() {
         solve_time_ns: 80_000,
         objective: -3.5,
         slack_norm: 0.01,
+        image_stamp_ns: NOW - 40_000_000,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -557,6 +577,15 @@ fn qp_status_rejects_bad_fields() {
         "slack_norm",
         None,
         out_of_range,
+    );
+    assert_rejected(
+        &QpStatus {
+            image_stamp_ns: ok.header.stamp_ns + 1,
+            ..ok
+        },
+        "image_stamp_ns",
+        None,
+        inconsistent,
     );
 }
 

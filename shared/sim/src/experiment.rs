@@ -129,7 +129,34 @@ pub struct TrialTrace {
     pub objects: Vec<Vec<(f64, f64)>>,
     /// Container centres.
     pub containers: Vec<(f64, f64)>,
+    /// One row per control cycle, columns as in [`CYCLE_COLUMNS`] (only when asked for).
+    pub cycles: Vec<Vec<f64>>,
 }
+
+/// Column names of [`TrialTrace::cycles`].
+pub const CYCLE_COLUMNS: [&str; 21] = [
+    "t",
+    "task",
+    "base_x",
+    "base_y",
+    "base_yaw",
+    "odom_x",
+    "odom_y",
+    "odom_yaw",
+    "base_v",
+    "tool_x",
+    "tool_y",
+    "tool_z",
+    "target_x",
+    "target_y",
+    "target_z",
+    "cube_x",
+    "cube_y",
+    "cube_z",
+    "gripper_opening",
+    "command_v",
+    "command_omega",
+];
 
 /// One row of a results table: the trials of one method, speed, robot and object motion.
 #[derive(Debug, Clone, PartialEq, Serialize)]

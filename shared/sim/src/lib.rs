@@ -16,6 +16,7 @@ pub mod render;
 pub mod runner;
 pub mod scenario;
 pub mod sim_world;
+pub mod trial_camera;
 pub mod world;
 
 pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject};

@@ -19,7 +19,8 @@ use motm_core::wrap_angle;
 pub struct ObjectConfig {
     /// Edge length of the cubes, m (30 mm in the paper).
     pub cube_size: f64,
-    /// Side of the square platform under each cube, m.
+    /// Side of the square platform under each cube, m. 0.3 m: a small stand, so a base passing
+    /// the cube at r_C = 0.6 m clears it wherever the cube has moved on it.
     pub platform_size: f64,
     /// Half side of the square, centred on the cube's start, within which a moving cube travels,
     /// m. Chosen well inside the platform so a moving cube never falls off on its own.
@@ -55,8 +56,8 @@ impl Default for ObjectConfig {
     fn default() -> Self {
         Self {
             cube_size: 0.03,
-            platform_size: 0.4,
-            travel_half_extent: 0.12,
+            platform_size: 0.3,
+            travel_half_extent: 0.1,
             random_turn_rate_std: 0.5,
             random_turn_time_constant: 1.0,
             random_return_gain: 2.0,

@@ -43,6 +43,8 @@ pub struct RunnerConfig {
     pub timeout_per_task: f64,
     /// Record one trace sample every this many control cycles.
     pub trace_every: usize,
+    /// Also record every control cycle in the trace ([`TrialTrace::cycles`]).
+    pub record_cycles: bool,
     /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
     pub camera: CameraConfig,
     /// Perception.
@@ -65,6 +67,7 @@ impl Default for RunnerConfig {
             timeout_base: 30.0,
             timeout_per_task: 40.0,
             trace_every: 10,
+            record_cycles: false,
             camera: CameraConfig::default(),
             perception: PerceptionConfig::default(),
             acceleration: AccelerationFilterConfig::default(),
@@ -228,7 +231,7 @@ pub fn run_trial(
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
     let mut world = World::new(robot, scenario, seed);
-    let mut camera = crate::sim_world::palm_camera(&config.camera, scenario, seed);
+    let mut camera = PalmCamera::for_trial(&config.camera, scenario, seed);
     let scenes = SceneBuilder::new(&world);
     let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
     let start = scenario.start();
@@ -403,6 +406,37 @@ pub fn run_trial(
         }
         let truth = world.truth();
         meter.push(truth.tool_pose.translation.vector);
+        if let Some(trace) = trace.as_mut().filter(|_| config.record_cycles) {
+            let tool = truth.tool_pose.translation.vector;
+            let cube = truth
+                .objects
+                .get(tasks.get(task_index).map_or(0, |t| t.item))
+                .map_or(Vector3::zeros(), |o| o.position());
+            let odom = &sensors.base_pose;
+            trace.cycles.push(vec![
+                t,
+                task_index as f64,
+                truth.base_pose.x,
+                truth.base_pose.y,
+                truth.base_pose.yaw,
+                odom.x,
+                odom.y,
+                odom.yaw,
+                truth.base_velocity.v,
+                tool.x,
+                tool.y,
+                tool.z,
+                target.position.x,
+                target.position.y,
+                target.position.z,
+                cube.x,
+                cube.y,
+                cube.z,
+                truth.gripper_opening,
+                command.base.v,
+                command.base.omega,
+            ]);
+        }
         if let Some(trace) = trace
             .as_mut()
             .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))

@@ -19,8 +19,7 @@ pub struct PlanningConfig {
     /// base path is smooth and unique.
     pub base_acceleration_weight: f64,
     /// Smallest distance, m, between the base centre and the cube or the container, enforced at
-    /// every knot (the paper's "minimum distance between base and targets"). 0.6 m: Frankie's
-    /// footprint corner (0.41 m) plus half a container (0.15 m) plus a margin.
+    /// every knot (the paper's "minimum distance between base and targets").
     pub target_clearance: f64,
     /// Distance, m, at which the nominal route passes the cube and the container (tangent
     /// geometry, as the MotM base controller's r_C). Used to fix the grasp and drop times and as
@@ -86,7 +85,7 @@ impl Default for PlanningConfig {
             knot_spacing: 0.1,
             gripper_acceleration_weight: 1.0,
             base_acceleration_weight: 0.1,
-            target_clearance: 0.6,
+            target_clearance: 0.5,
             pass_distance: 0.6,
             event_range_fraction: 0.9,
             min_forward_reach: 0.1,

@@ -1,0 +1,126 @@
+//! The perception process: cube estimates from palm-camera images for the current pick, each
+//! image paired with the tool pose the robot believed it had when the image was taken.
+//!
+//! Choices: the tool-pose history keeps the last `history` poses (config, default 200: one
+//! second of 200 Hz joint states); an image is paired with the pose whose stamp is nearest
+//! its capture stamp (the runner's rule). Perception restarts, with the mission's target
+//! position as its hint, whenever a new pick starts.
+
+use std::collections::VecDeque;
+
+use nalgebra::Isometry3;
+
+use crate::camera::CameraCalibration;
+use crate::mission::TaskKind;
+use crate::perception::{ObjectEstimate, Perception, PerceptionConfig, PerceptionInput};
+
+use super::{MissionView, seconds};
+
+/// One camera image as received.
+#[derive(Debug, Clone, Copy)]
+pub struct CameraFrame<'a> {
+    /// RGB8 pixels, row-major.
+    pub pixels: &'a [u8],
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Capture (exposure) time, monotonic ns.
+    pub stamp_ns: u64,
+}
+
+/// An estimate to publish.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PerceptionReport {
+    /// The estimate (always `valid`).
+    pub estimate: ObjectEstimate,
+    /// Capture stamp of the image that gave the estimate's position, ns.
+    pub image_stamp_ns: u64,
+}
+
+/// Perception plus the tool-pose history and the current task.
+pub struct PerceptionCycle {
+    config: PerceptionConfig,
+    calibration: CameraCalibration,
+    perception: Perception,
+    history_len: usize,
+    task: Option<usize>,
+    history: VecDeque<(u64, Isometry3<f64>)>,
+    fix_stamp_ns: u64,
+}
+
+impl PerceptionCycle {
+    /// Perception with `config` and the robot's camera `calibration`, keeping `history_len`
+    /// tool poses.
+    pub fn new(
+        config: PerceptionConfig,
+        calibration: CameraCalibration,
+        history_len: usize,
+    ) -> Self {
+        Self {
+            perception: Perception::new(config, calibration),
+            config,
+            calibration,
+            history_len: history_len.max(1),
+            task: None,
+            history: VecDeque::new(),
+            fix_stamp_ns: 0,
+        }
+    }
+
+    /// Records the tool pose believed at monotonic time `stamp_ns` (non-finite poses are
+    /// ignored).
+    pub fn record_tool(&mut self, stamp_ns: u64, pose: Isometry3<f64>) {
+        let finite = pose.translation.vector.iter().all(|x| x.is_finite())
+            && pose.rotation.coords.iter().all(|x| x.is_finite());
+        if !finite {
+            return;
+        }
+        self.history.push_back((stamp_ns, pose));
+        while self.history.len() > self.history_len {
+            self.history.pop_front();
+        }
+    }
+
+    /// Follows the mission: a new task restarts perception.
+    pub fn select(&mut self, mission: &MissionView) {
+        if self.task != Some(mission.task_index) {
+            self.task = Some(mission.task_index);
+            self.perception = Perception::new(self.config, self.calibration);
+            self.fix_stamp_ns = 0;
+        }
+    }
+
+    /// Processes `frame` for the current task: `Some` estimate to publish while a pick's cube
+    /// has been seen at least once (held when it leaves the view), `None` otherwise.
+    pub fn observe(
+        &mut self,
+        mission: &MissionView,
+        frame: &CameraFrame<'_>,
+    ) -> Option<PerceptionReport> {
+        self.select(mission);
+        if mission.current_kind() != Some(TaskKind::Pick) {
+            return None;
+        }
+        let &(_, tool_pose) = self
+            .history
+            .iter()
+            .min_by_key(|(stamp, _)| stamp.abs_diff(frame.stamp_ns))?;
+        let estimate = self.perception.step(&PerceptionInput {
+            image: frame.pixels,
+            width: frame.width,
+            height: frame.height,
+            stamp: seconds(frame.stamp_ns),
+            tool_pose,
+            object_height: mission.target.z,
+            target_hint: Some(mission.target),
+        });
+        if estimate.visible {
+            self.fix_stamp_ns = frame.stamp_ns;
+        }
+        estimate.valid.then_some(PerceptionReport {
+            estimate,
+            image_stamp_ns: self.fix_stamp_ns,
+        })
+    }
+}

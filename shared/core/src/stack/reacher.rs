@@ -1,0 +1,134 @@
+//! The reacher process: the reacher driven by the mission, the base planner's plan and the
+//! measured arm state, with the twist fed back as [`crate::on_the_move`] does.
+
+use nalgebra::Vector6;
+
+use crate::kinematics::BasePose;
+use crate::mission::Phase;
+use crate::on_the_move::OnTheMoveConfig;
+use crate::reacher::{Reacher, ReacherInput, ReacherOutput, ToolState};
+use crate::robot::Robot;
+use crate::types::{BaseVelocity, TargetEstimate, Twist};
+
+use super::{MissionView, reach_aim};
+
+/// The base planner's plan as the reacher uses it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlanView {
+    /// Index of the task the plan was made for.
+    pub task_index: usize,
+    /// t_R, s.
+    pub time_to_range: f64,
+    /// Base pose predicted at t_R.
+    pub range_entry_pose: BasePose,
+}
+
+/// What the reacher reads each cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct ReacherCycleInput<'a> {
+    /// The supervisor's mission state.
+    pub mission: MissionView,
+    /// Base pose (odometry).
+    pub base: BasePose,
+    /// Arm joint positions.
+    pub arm_q: &'a [f64],
+    /// Target of the current task (see [`super::TargetSelector`]).
+    pub target: TargetEstimate,
+    /// The latest base plan, if any.
+    pub plan: Option<PlanView>,
+    /// The base planner's velocity target (zero when none has arrived).
+    pub base_target: BaseVelocity,
+}
+
+/// Why a reacher cycle produced no twist.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReacherIdle {
+    /// The current task is in its final phase.
+    NotReaching,
+    /// No base plan for the current task has arrived yet.
+    NoPlan,
+    /// The arm state has the wrong size or a non-finite value.
+    BadInput,
+}
+
+/// The reacher with the tool state it feeds back (previous commanded twist and acceleration).
+#[derive(Debug, Clone)]
+pub struct ReacherCycle {
+    robot: Robot,
+    config: OnTheMoveConfig,
+    reacher: Reacher,
+    /// Control period, s.
+    dt: f64,
+    last_twist: Twist,
+    last_acceleration: Vector6<f64>,
+}
+
+impl ReacherCycle {
+    /// A reacher for `robot` with `config`, run every `dt` seconds.
+    pub fn new(robot: Robot, config: OnTheMoveConfig, dt: f64) -> Self {
+        Self {
+            reacher: Reacher::new(config.reacher.clone(), &robot),
+            robot,
+            config,
+            dt,
+            last_twist: Twist::zeros(),
+            last_acceleration: Vector6::zeros(),
+        }
+    }
+
+    /// Records a twist another controller commanded (the final phase's), so the tool state fed
+    /// back after it is the commanded (rate-limited) motion, as in the single-process
+    /// controller.
+    pub fn follow(&mut self, twist: Twist) {
+        if twist.iter().all(|x| x.is_finite()) {
+            self.last_acceleration = (twist - self.last_twist) / self.dt;
+            self.last_twist = self
+                .config
+                .twist_rate
+                .apply(&self.last_twist, &twist, self.dt);
+        }
+    }
+
+    /// One cycle: the reach twist of the current task (after the last task, the ready pose
+    /// held while the base drives on), or why there is none. The twist is the reacher's own;
+    /// the QP resolver rate-limits it.
+    pub fn step(&mut self, input: &ReacherCycleInput<'_>) -> Result<ReacherOutput, ReacherIdle> {
+        let mission = &input.mission;
+        if mission.phase == Phase::Final {
+            return Err(ReacherIdle::NotReaching);
+        }
+        let plan = input
+            .plan
+            .filter(|p| p.task_index == mission.base_task_index())
+            .ok_or(ReacherIdle::NoPlan)?;
+        if input.arm_q.len() != self.robot.arm_dof() || input.arm_q.iter().any(|q| !q.is_finite()) {
+            return Err(ReacherIdle::BadInput);
+        }
+        let tool_pose = self.robot.tool_pose(&input.base, input.arm_q);
+        let aim = reach_aim(mission.kind, &input.target, &self.config);
+        let out = self
+            .reacher
+            .step(&ReacherInput {
+                task_index: mission.task_index,
+                base: input.base,
+                base_velocity: input.base_target,
+                tool: ToolState {
+                    pose: tool_pose,
+                    twist: self.last_twist,
+                    acceleration: self.last_acceleration,
+                },
+                target: aim,
+                target_yaw: None,
+                time_to_range: plan.time_to_range,
+                range_entry_pose: plan.range_entry_pose,
+                dt: self.dt,
+            })
+            .map_err(|_| ReacherIdle::BadInput)?;
+        self.last_twist = self
+            .config
+            .twist_rate
+            .apply(&self.last_twist, &out.twist, self.dt);
+        self.last_acceleration = out.acceleration;
+        Ok(out)
+    }
+}

@@ -1,0 +1,268 @@
+//! The QP-resolver process: picks the twist of the active phase and resolves it, with the base
+//! planner's velocity target, into arm and base velocity commands.
+//!
+//! Choices (config values in [`ResolverCycleConfig`]):
+//! - **Twist of the active phase**: the reacher's in the reach phase, the active final-phase
+//!   controller's in the final phase (any final-phase controller's until an active-controller
+//!   id has been received), for the current task and no older than `max_twist_age`.
+//! - **Phase changes**: the controller of the new phase needs a cycle to notice the change;
+//!   meanwhile the freshest twist of either controller is used (counted as a fallback), so the
+//!   command does not drop to zero at every hand-over.
+//! - **Twist rate limit and e_t cap** as in [`crate::on_the_move`]: the chosen twist moves from
+//!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`], and e_t is
+//!   capped at `max_position_error`. After the mission the reacher's twist (arm at its ready
+//!   pose) is the active one.
+//! - **Missing or stale input** (no mission, joint state or odometry older
+//!   than `max_state_age`, no fresh twist at all): an all-zero command, which the drivers ramp
+//!   to within their limits. A missing or stale base target is replaced by a zero target.
+
+use serde::Deserialize;
+
+use crate::kinematics::BasePose;
+use crate::mission::Phase;
+use crate::on_the_move::OnTheMoveConfig;
+use crate::resolver::{RedundancyResolver, ResolveStatus, ResolverOutput};
+use crate::robot::Robot;
+use crate::types::{BaseVelocity, TargetEstimate, Twist};
+
+use super::{MissionView, reach_aim};
+
+/// Staleness limits of the QP resolver's inputs.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ResolverCycleConfig {
+    /// Oldest twist or base target still used, s (default 0.05: ten 200 Hz cycles).
+    pub max_twist_age: f64,
+    /// Oldest joint state or odometry still used, s (default 0.05).
+    pub max_state_age: f64,
+}
+
+impl Default for ResolverCycleConfig {
+    fn default() -> Self {
+        Self {
+            max_twist_age: 0.05,
+            max_state_age: 0.05,
+        }
+    }
+}
+
+/// A twist command as received, with its age.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TwistSample {
+    /// World twist.
+    pub twist: Twist,
+    /// Task the twist was computed for.
+    pub task_index: usize,
+    /// Phase the twist belongs to.
+    pub phase: Phase,
+    /// Id of the controller that sent it.
+    pub controller_id: u32,
+    /// Age at this cycle, ns.
+    pub age_ns: u64,
+}
+
+/// The measured robot state.
+#[derive(Debug, Clone, Copy)]
+pub struct MeasuredState<'a> {
+    /// Base pose (odometry).
+    pub base: BasePose,
+    /// Arm joint positions.
+    pub arm_q: &'a [f64],
+    /// Age of the older of joint state and odometry, ns.
+    pub age_ns: u64,
+}
+
+/// What the QP resolver reads each cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct ResolverCycleInput<'a> {
+    /// The supervisor's mission state, if received.
+    pub mission: Option<MissionView>,
+    /// Joint state and odometry, if both were received.
+    pub state: Option<MeasuredState<'a>>,
+    /// Target of the current task (see [`super::TargetSelector`]).
+    pub target: TargetEstimate,
+    /// The reacher's latest twist.
+    pub reach: Option<TwistSample>,
+    /// The final-phase controllers' latest twist.
+    pub final_twist: Option<TwistSample>,
+    /// Id of the active final-phase controller, once announced.
+    pub active_controller: Option<u32>,
+    /// The base planner's latest velocity target and its age, ns.
+    pub base_target: Option<(BaseVelocity, u64)>,
+}
+
+/// Where the resolved twist came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TwistSource {
+    /// The active phase's controller, for the current task.
+    ActivePhase,
+    /// The freshest twist of either controller, during a hand-over.
+    Fallback,
+    /// Nothing usable: the command is all zero.
+    Stopped,
+}
+
+/// What the QP resolver publishes each cycle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResolverCycleOutput {
+    /// The command (all zero when `source` is [`TwistSource::Stopped`]).
+    pub resolved: ResolverOutput,
+    /// The twist that was resolved.
+    pub twist: Twist,
+    /// Where it came from.
+    pub source: TwistSource,
+    /// The tool's distance to the current task's aim point, m (infinite when unknown; the QP's
+    /// e_t is this capped at `max_position_error`).
+    pub tool_to_target: f64,
+}
+
+/// The QP resolver with its twist selection.
+pub struct ResolverCycle {
+    robot: Robot,
+    config: OnTheMoveConfig,
+    limits: ResolverCycleConfig,
+    resolver: RedundancyResolver,
+    /// Control period, s.
+    dt: f64,
+    /// The last resolved (rate-limited) twist.
+    last_twist: Twist,
+    fallbacks: u64,
+    stops: u64,
+}
+
+impl ResolverCycle {
+    /// A resolver for `robot` with the controller `config` and staleness `limits`, run every
+    /// `dt` seconds.
+    pub fn new(
+        robot: Robot,
+        config: OnTheMoveConfig,
+        limits: ResolverCycleConfig,
+        dt: f64,
+    ) -> Self {
+        Self {
+            dt,
+            last_twist: Twist::zeros(),
+            resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
+            robot,
+            config,
+            limits,
+            fallbacks: 0,
+            stops: 0,
+        }
+    }
+
+    /// The QP itself (limits, error count).
+    pub fn resolver(&self) -> &RedundancyResolver {
+        &self.resolver
+    }
+
+    /// Cycles that used a hand-over fallback twist.
+    pub fn fallbacks(&self) -> u64 {
+        self.fallbacks
+    }
+
+    /// Cycles that sent an all-zero command for want of usable input.
+    pub fn stops(&self) -> u64 {
+        self.stops
+    }
+
+    /// Whether `sample` is fresh and from an acceptable sender.
+    fn usable(&self, sample: &TwistSample, active: Option<u32>) -> bool {
+        let fresh = (sample.age_ns as f64) * 1e-9 <= self.limits.max_twist_age;
+        let sender_ok =
+            sample.phase != Phase::Final || active.is_none_or(|id| id == sample.controller_id);
+        fresh && sender_ok && sample.twist.iter().all(|x| x.is_finite())
+    }
+
+    /// Chooses the twist to resolve (see the module doc).
+    pub fn select_twist(
+        &self,
+        mission: &MissionView,
+        input: &ResolverCycleInput<'_>,
+    ) -> Option<(Twist, TwistSource)> {
+        let usable: Vec<TwistSample> = [input.reach, input.final_twist]
+            .into_iter()
+            .flatten()
+            .filter(|s| self.usable(s, input.active_controller))
+            .collect();
+        // After the mission the reacher holds the arm at its ready pose.
+        let phase = match mission.phase {
+            Phase::Final => Phase::Final,
+            Phase::Reach | Phase::Complete => Phase::Reach,
+        };
+        if let Some(s) = usable
+            .iter()
+            .find(|s| s.task_index == mission.task_index && s.phase == phase)
+        {
+            return Some((s.twist, TwistSource::ActivePhase));
+        }
+        usable
+            .iter()
+            .min_by_key(|s| s.age_ns)
+            .map(|s| (s.twist, TwistSource::Fallback))
+    }
+
+    /// The all-zero command.
+    fn stop(&mut self, tool_to_target: f64) -> ResolverCycleOutput {
+        self.stops += 1;
+        self.last_twist = Twist::zeros();
+        ResolverCycleOutput {
+            resolved: ResolverOutput {
+                base: BaseVelocity::default(),
+                arm_qd: vec![0.0; self.robot.arm_dof()],
+                slack: nalgebra::Vector6::zeros(),
+                status: ResolveStatus::InvalidInput,
+                iterations: 0,
+            },
+            twist: Twist::zeros(),
+            source: TwistSource::Stopped,
+            tool_to_target,
+        }
+    }
+
+    /// One cycle.
+    pub fn step(&mut self, input: &ResolverCycleInput<'_>) -> ResolverCycleOutput {
+        let max_state_age_ns = self.limits.max_state_age * 1e9;
+        let (Some(mission), Some(state)) = (input.mission, input.state) else {
+            return self.stop(f64::INFINITY);
+        };
+        if state.age_ns as f64 > max_state_age_ns
+            || state.arm_q.len() != self.robot.arm_dof()
+            || state.arm_q.iter().any(|q| !q.is_finite())
+        {
+            return self.stop(f64::INFINITY);
+        }
+        let tool = self.robot.tool_pose(&state.base, state.arm_q);
+        let aim = reach_aim(mission.kind, &input.target, &self.config);
+        let tool_to_target = (tool.translation.vector - aim.position).norm();
+        let Some((twist, source)) = self.select_twist(&mission, input) else {
+            return self.stop(tool_to_target);
+        };
+        if source == TwistSource::Fallback {
+            self.fallbacks += 1;
+        }
+        let twist = self
+            .config
+            .twist_rate
+            .apply(&self.last_twist, &twist, self.dt);
+        self.last_twist = twist;
+        let base_target = match input.base_target {
+            Some((target, age_ns)) if age_ns as f64 * 1e-9 <= self.limits.max_twist_age => target,
+            _ => BaseVelocity::default(),
+        };
+        let resolved = self.resolver.resolve_motm(
+            &self.robot,
+            &state.base,
+            state.arm_q,
+            twist,
+            tool_to_target.min(self.config.max_position_error),
+            Some(base_target),
+        );
+        ResolverCycleOutput {
+            resolved,
+            twist,
+            source,
+            tool_to_target,
+        }
+    }
+}

@@ -1,0 +1,158 @@
+//! The command line every control service takes, and loading the robot, scenario and
+//! controller settings it names.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use motm_core::Robot;
+use motm_core::camera::{CameraCalibration, CameraConfig};
+use motm_core::on_the_move::OnTheMoveConfig;
+use motm_sim::Scenario;
+use motm_sim::render::PalmCamera;
+
+/// Robot used when neither `--robot` nor a scenario names one.
+pub const DEFAULT_ROBOT: &str = "frankie";
+
+/// Options shared by the control services.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServiceArgs {
+    /// Config folder (default: $MOTM_CONFIG_DIR, then ./config, then the source tree's config/).
+    #[arg(long)]
+    pub config_dir: Option<PathBuf>,
+    /// Scenario file: its robot, base speed and camera noise are used.
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Robot name (default: the scenario's robot, else frankie).
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Base forward speed, m/s (default: the scenario's).
+    #[arg(long)]
+    pub base_speed: Option<f64>,
+    /// Trial seed (the camera calibration error is drawn from it, as in the simulated world).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Cycle rate, Hz.
+    #[arg(long, default_value_t = 200.0)]
+    pub rate: f64,
+}
+
+/// Everything a control service loads at start-up.
+#[derive(Debug, Clone)]
+pub struct ServiceSetup {
+    /// The robot model.
+    pub robot: Robot,
+    /// The scenario, when one was given.
+    pub scenario: Option<Scenario>,
+    /// Controller settings (defaults, with the scenario's or the flag's base speed).
+    pub config: OnTheMoveConfig,
+    /// Trial seed.
+    pub seed: u64,
+    /// Cycle rate, Hz.
+    pub rate_hz: f64,
+}
+
+/// The config folder: the flag, then `$MOTM_CONFIG_DIR`, then `./config`, then the source
+/// tree's `config/` (the `motm` CLI's order).
+pub fn resolve_config_dir(flag: Option<&Path>) -> PathBuf {
+    if let Some(dir) = flag {
+        return dir.to_path_buf();
+    }
+    if let Some(dir) = std::env::var_os("MOTM_CONFIG_DIR") {
+        return PathBuf::from(dir);
+    }
+    let local = Path::new("config");
+    if local.join("robots").is_dir() {
+        return local.to_path_buf();
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
+}
+
+impl ServiceSetup {
+    /// Loads what `args` name; the error names the file or flag at fault.
+    pub fn load(args: &ServiceArgs) -> Result<Self, String> {
+        if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 10_000.0) {
+            return Err(format!(
+                "--rate: must be in (0, 10000] Hz, got {}",
+                args.rate
+            ));
+        }
+        let config_dir = resolve_config_dir(args.config_dir.as_deref());
+        let mut scenario = match &args.scenario {
+            Some(path) => Some(Scenario::from_file(path).map_err(|e| e.to_string())?),
+            None => None,
+        };
+        let robot_name = args
+            .robot
+            .clone()
+            .or_else(|| scenario.as_ref().map(|s| s.robot.clone()))
+            .unwrap_or_else(|| DEFAULT_ROBOT.to_owned());
+        let robot = Robot::load(&config_dir, &robot_name).map_err(|e| e.to_string())?;
+        let mut config = OnTheMoveConfig::default();
+        if let Some(speed) = args.base_speed {
+            match scenario.as_mut() {
+                Some(s) => s.set_base_speed(speed).map_err(|e| e.to_string())?,
+                None if speed.is_finite() && speed > 0.0 => {}
+                None => return Err(format!("--base-speed: must be positive, got {speed}")),
+            }
+        }
+        if let Some(speed) = args.base_speed.or(scenario.as_ref().map(|s| s.base_speed)) {
+            config.base.forward_speed = speed;
+        }
+        Ok(Self {
+            robot,
+            scenario,
+            config,
+            seed: args.seed,
+            rate_hz: args.rate,
+        })
+    }
+
+    /// The cycle period.
+    pub fn period(&self) -> Duration {
+        Duration::from_secs_f64(1.0 / self.rate_hz)
+    }
+
+    /// The cycle period, s.
+    pub fn dt(&self) -> f64 {
+        1.0 / self.rate_hz
+    }
+
+    /// The calibration perception uses: the trial camera's (with the scenario's extrinsic
+    /// error drawn from the seed), or the nominal one without a scenario.
+    pub fn camera_calibration(&self, camera: &CameraConfig) -> CameraCalibration {
+        match &self.scenario {
+            Some(scenario) => PalmCamera::for_trial(camera, scenario, self.seed).calibration(),
+            None => camera.calibration(),
+        }
+    }
+}
+
+/// Unwraps a start-up result, or prints the error naming the process and exits with code 2.
+pub fn exit_on_error<T, E: std::fmt::Display>(process: &str, result: Result<T, E>) -> T {
+    match result {
+        Ok(value) => value,
+        Err(e) => {
+            eprintln!("{process}: {e}");
+            std::process::exit(2);
+        }
+    }
+}
+
+/// Prints the closing line of a service: cycles, deadline misses, p99 and longest cycle time,
+/// rejected messages, and `details` from the service itself.
+pub fn report_exit(
+    process: &str,
+    service: &mut motm_bus::ServiceLoop<'_>,
+    bus: &motm_bus::Bus,
+    details: &str,
+) {
+    let stats = service.stats_mut();
+    let p99_us = stats.percentile_ns(99.0) / 1000;
+    eprintln!(
+        "{process}: stopped after {} cycles, {} deadline misses, p99 cycle {p99_us} us, max {} us, {} rejected messages; {details}",
+        stats.cycles(),
+        stats.deadline_misses(),
+        stats.max_cycle_ns() / 1000,
+        bus.rejected_messages()
+    );
+}
