@@ -2,7 +2,14 @@
 //! (1 kHz) on the service loop's timer, from the newest hardware commands of the drivers, and
 //! publishes the arm, base and gripper state every step, palm-camera images at the camera rate
 //! (written in place in shared memory) and the ground truth ([`motm_msgs::SimTruth`]).
-
+//!
+//! | reads | publishes |
+//! | --- | --- |
+//! | `HW_ARM_COMMAND`, `HW_BASE_COMMAND`, `HW_GRIPPER_COMMAND` | `HW_ARM_STATE`, `HW_BASE_STATE`, `HW_GRIPPER_STATE` (every step), `CAMERA_IMAGE` (30 Hz, `Qos::large()`, stamped with the exposure time), `SIM_TRUTH` (`--truth-rate`, and at once when the outcome is decided) |
+//!
+//! Real time: each cycle runs the physics steps due since the first cycle (normally one, up to
+//! `--max-catch-up` after lost timer ticks; beyond that the simulation falls behind). A hardware
+//! command older than `--command-timeout` is braked to zero within the robot's limits.
 mod convert;
 
 use std::path::PathBuf;

@@ -3,6 +3,16 @@
 //! a [`VelocityDriver`] (the limits are enforced there) and publishes the hardware command, the
 //! re-published state and a [`DriverStatus`].
 //!
+//! | process | reads | publishes |
+//! | --- | --- | --- |
+//! | panda-driver (1 kHz) | `ARM_VELOCITY_COMMAND` (every sample), `ARM_GRIPPER_COMMAND`, `CONTROL_ACTIVE_CONTROLLER`, `SAFETY_SAFE_STOP`, `HW_ARM_STATE`, `HW_GRIPPER_STATE` | `HW_ARM_COMMAND`, `HW_GRIPPER_COMMAND`, `ARM_JOINT_STATE`, `ARM_GRIPPER_STATE` (both waking), `ARM_DRIVER_STATUS` |
+//! | ld60-driver (50 Hz) | `BASE_VELOCITY_COMMAND` (every sample), `SAFETY_SAFE_STOP`, `HW_BASE_STATE` | `HW_BASE_COMMAND`, `BASE_ODOMETRY` (waking), `BASE_DRIVER_STATUS` |
+//!
+//! The state is re-published at the driver's own rate, stamped with the hardware's stamp.
+//! [`DriverStatus`] (at `--status-rate`) carries `limit_violations` (commands that arrived
+//! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
+//! self-check, always 0) and `max_command_gap_ns`.
+//!
 //! Backends: only `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services).
 
 use std::path::PathBuf;
