@@ -61,6 +61,9 @@ fn err<E: std::fmt::Debug>(e: E) -> String {
     format!("plot: {e:?}")
 }
 
+/// A column of a table row to plot.
+type Metric = fn(&TableRow) -> f64;
+
 /// Task time and mean acceleration against base speed, one line per robot.
 struct PlatformsFigure<'a> {
     rows: Vec<&'a TableRow>,
@@ -73,7 +76,7 @@ impl Figure for PlatformsFigure<'_> {
         let mut robots: Vec<&str> = self.rows.iter().map(|r| r.robot.as_str()).collect();
         robots.dedup();
         let v_max = self.rows.iter().map(|r| r.base_speed).fold(0.0, f64::max) + 0.05;
-        let metrics: [(&str, fn(&TableRow) -> f64); 2] = [
+        let metrics: [(&str, Metric); 2] = [
             ("task time (s)", |r| r.task_time_s),
             ("mean |a| of EE (m/s²)", |r| r.ee_acc_mean),
         ];
@@ -266,6 +269,7 @@ mod tests {
             ee: vec![(0.6, 0.0), (1.6, 0.2), (2.6, 0.4)],
             objects: vec![vec![(2.0, 0.6), (2.05, 0.62)]],
             containers: vec![(3.6, 1.6)],
+            cycles: Vec::new(),
         };
         trajectories(
             &dir,
