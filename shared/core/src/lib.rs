@@ -6,6 +6,7 @@
 //! - [`base_controller`]: closest-approach geometry and the constant-speed polar base controller.
 //! - [`camera`]: the palm camera's equidistant fisheye model, configuration and calibration.
 //! - [`chain`]: serial chains loaded from URDF.
+//! - [`command_limiter`]: the drivers' velocity, acceleration and jerk limiter with stale-command and safe-stop ramps.
 //! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
 //! - [`input_check`]: refusing non-finite controller input.
@@ -19,6 +20,7 @@
 //! - [`reactive`]: the reactive (holistic stop-and-grasp) baseline's task stages.
 //! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
 //! - [`types`]: value types shared by the control modules.
+//! - [`velocity_driver`]: the arm and base drivers' logic: command ages and gaps, limiter, self-check.
 //! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
 //! - [`stack`]: the control loop split into per-process cycle functions for the deployed stack.
 //! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
@@ -29,6 +31,7 @@
 pub mod base_controller;
 pub mod camera;
 pub mod chain;
+pub mod command_limiter;
 pub mod error;
 pub mod final_phase;
 pub mod holistic;
@@ -48,6 +51,7 @@ pub mod robot;
 pub mod servo;
 pub mod stack;
 pub mod types;
+pub mod velocity_driver;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use error::ModelError;

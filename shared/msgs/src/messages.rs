@@ -764,3 +764,190 @@ code_enum!(
         Done = 1,
     }
 );
+/// Largest number of objects a [`SimTruth`] reports.
+pub const MAX_SIM_OBJECTS: usize = 8;
+
+code_enum!(
+    /// How a simulated trial stands (mirrors `motm_sim::Outcome` plus running and timeout).
+    SimOutcome {
+        /// The trial is still running.
+        Running = 0,
+        /// Every cube landed in its container and every button was pressed.
+        Success = 1,
+        /// Failure: the gripper knocked a cube off its platform.
+        KnockedOff = 2,
+        /// Failure: a grasp closed on nothing.
+        MissedGrasp = 3,
+        /// Failure: a released cube landed outside its container.
+        DroppedOutside = 4,
+        /// Failure: the base drove into a platform or a container.
+        BaseCollision = 5,
+        /// Failure: the trial ran past its time limit.
+        Timeout = 6,
+    }
+);
+
+/// Ground truth of the simulated world, from sim-world: for metrics and tests, never for the
+/// controllers.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("motm.v1.SimTruth")]
+#[repr(C)]
+pub struct SimTruth {
+    /// Common header.
+    pub header: Header,
+    /// Simulation time, s.
+    pub sim_time: f64,
+    /// Simulation time when the outcome was decided, s (equals `sim_time` while running).
+    pub task_time: f64,
+    /// [`SimOutcome`] code.
+    pub outcome: u32,
+    /// Number of objects in use (0..=[`MAX_SIM_OBJECTS`]); entries past it are zero.
+    pub object_count: u32,
+    /// True tool (grasp point) position in the world, m.
+    pub tool_position: [f64; 3],
+    /// True base pose `[x, y, yaw]`, m and rad.
+    pub base_pose: [f64; 3],
+    /// Object centres `[x0, y0, z0, x1, ...]`, m.
+    pub object_positions: [f64; 3 * MAX_SIM_OBJECTS],
+    /// Simulation time each object was placed in its container, s; −1 when not (yet) placed.
+    pub object_placed_time: [f64; MAX_SIM_OBJECTS],
+    /// Index of the held object, or −1 when none is held.
+    pub held_object: i32,
+    /// Explicit padding; always zero.
+    pub reserved: u32,
+    /// Opening between the gripper fingers, m.
+    pub gripper_opening: f64,
+    /// Mean |EE acceleration| so far (low-pass filtered), m/s².
+    pub ee_acc_mean: f64,
+    /// Largest |EE acceleration| so far (low-pass filtered), m/s².
+    pub ee_acc_max: f64,
+    /// Hardware commands the world dropped (wrong length or non-finite) so far.
+    pub rejected_commands: u64,
+    /// Physics cycles that had to catch up on lost timer ticks so far.
+    pub catch_up_cycles: u64,
+}
+
+impl SimTruth {
+    /// The outcome, if the code is valid.
+    pub fn outcome(&self) -> Option<SimOutcome> {
+        SimOutcome::try_from(self.outcome).ok()
+    }
+}
+
+message!(SimTruth, |m, c| {
+    c.in_range("sim_time", m.sim_time, 0.0, f64::MAX)?;
+    c.in_range("task_time", m.task_time, 0.0, m.sim_time)?;
+    c.code::<SimOutcome>("outcome", m.outcome)?;
+    let count = m.object_count as usize;
+    if count > MAX_SIM_OBJECTS {
+        return Err(c.reject(
+            "object_count",
+            None,
+            RejectReason::OutOfRange {
+                value: f64::from(m.object_count),
+                min: 0.0,
+                max: MAX_SIM_OBJECTS as f64,
+            },
+        ));
+    }
+    c.all_within("tool_position", &m.tool_position, envelope::WORLD_POSITION)?;
+    c.all_within("base_pose", &m.base_pose, envelope::WORLD_POSITION)?;
+    c.joint_array(
+        "object_positions",
+        &m.object_positions,
+        3 * count,
+        envelope::WORLD_POSITION,
+    )?;
+    for (i, &t) in m.object_placed_time.iter().enumerate() {
+        let max = if i < count { m.sim_time } else { 0.0 };
+        c.in_range_at("object_placed_time", Some(i), t, -1.0, max)?;
+        if t < 0.0 && t != -1.0 {
+            return Err(c.reject(
+                "object_placed_time",
+                Some(i),
+                RejectReason::Inconsistent("must be -1 or a time"),
+            ));
+        }
+    }
+    if m.held_object < -1 || m.held_object >= count as i32 {
+        return Err(c.reject(
+            "held_object",
+            None,
+            RejectReason::OutOfRange {
+                value: f64::from(m.held_object),
+                min: -1.0,
+                max: count as f64 - 1.0,
+            },
+        ));
+    }
+    padding(c, m.reserved)?;
+    c.in_range(
+        "gripper_opening",
+        m.gripper_opening,
+        0.0,
+        envelope::GRIPPER_WIDTH,
+    )?;
+    c.in_range("ee_acc_mean", m.ee_acc_mean, 0.0, f64::MAX)?;
+    c.in_range("ee_acc_max", m.ee_acc_max, 0.0, f64::MAX)
+});
+
+code_enum!(
+    /// What a driver's command limiter is doing (mirrors `motm_core::command_limiter::LimiterMode`).
+    DriverMode {
+        /// Following a fresh command.
+        Tracking = 0,
+        /// No fresh command: ramping to (or holding) zero.
+        Stale = 1,
+        /// Safe-stop raised: ramping to (or holding) zero.
+        SafeStop = 2,
+    }
+);
+
+/// Status of a driver (panda-driver or ld60-driver): its mode and counters since start.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("motm.v1.DriverStatus")]
+#[repr(C)]
+pub struct DriverStatus {
+    /// Common header.
+    pub header: Header,
+    /// [`DriverMode`] code.
+    pub mode: u32,
+    /// 1 when the hardware boundary (sim-world or the robot) reports state, 0 while waiting.
+    pub hardware_ready: u32,
+    /// Valid commands received.
+    pub commands_received: u64,
+    /// Commands that arrived beyond a limit (clamped or ignored, and counted).
+    pub limit_violations: u64,
+    /// Commands clamped to the velocity limit.
+    pub clamped_commands: u64,
+    /// Commands ignored (non-finite or wrong length).
+    pub ignored_commands: u64,
+    /// Driver cycles with a stale command (ramping to or holding zero).
+    pub stale_cycles: u64,
+    /// Driver cycles under safe-stop.
+    pub safe_stop_cycles: u64,
+    /// Driver outputs that broke a velocity, acceleration or jerk limit (must stay 0).
+    pub output_violations: u64,
+    /// Longest gap between consecutive received commands (header stamps), ns.
+    pub max_command_gap_ns: u64,
+}
+
+impl DriverStatus {
+    /// The mode, if the code is valid.
+    pub fn mode(&self) -> Option<DriverMode> {
+        DriverMode::try_from(self.mode).ok()
+    }
+}
+
+message!(DriverStatus, |m, c| {
+    c.code::<DriverMode>("mode", m.mode)?;
+    flag(c, "hardware_ready", m.hardware_ready)?;
+    if m.clamped_commands + m.ignored_commands != m.limit_violations {
+        return Err(c.reject(
+            "limit_violations",
+            None,
+            RejectReason::Inconsistent("must equal clamped_commands + ignored_commands"),
+        ));
+    }
+    Ok(())
+});

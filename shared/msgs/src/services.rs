@@ -100,3 +100,42 @@ mod tests {
         assert_eq!(names.len(), ALL.len());
     }
 }
+
+/// Gripper command from the arm driver to the simulated (or real) hardware ([`crate::GripperCommand`]).
+pub const HW_GRIPPER_COMMAND: &str = "motm/v1/hw/gripper_command";
+/// Gripper state from the simulated (or real) hardware ([`crate::GripperState`]).
+pub const HW_GRIPPER_STATE: &str = "motm/v1/hw/gripper_state";
+/// Ground truth of the simulated world ([`crate::SimTruth`]).
+pub const SIM_TRUTH: &str = "motm/v1/sim/truth";
+/// Status and limit counters of the arm driver ([`crate::DriverStatus`]).
+pub const ARM_DRIVER_STATUS: &str = "motm/v1/arm/driver_status";
+/// Status and limit counters of the base driver ([`crate::DriverStatus`]).
+pub const BASE_DRIVER_STATUS: &str = "motm/v1/base/driver_status";
+
+/// The simulated-hardware and driver-status services (besides [`ALL`]).
+pub const HARDWARE_AND_DRIVERS: [&str; 5] = [
+    HW_GRIPPER_COMMAND,
+    HW_GRIPPER_STATE,
+    SIM_TRUTH,
+    ARM_DRIVER_STATUS,
+    BASE_DRIVER_STATUS,
+];
+
+#[cfg(test)]
+mod hardware_and_driver_tests {
+    use super::*;
+
+    #[test]
+    fn hardware_and_driver_services_are_versioned_and_distinct_from_the_rest() {
+        let prefix = format!("motm/v{}/", crate::SCHEMA_VERSION);
+        let mut names: Vec<&str> = ALL.to_vec();
+        names.extend(HARDWARE_AND_DRIVERS);
+        for name in HARDWARE_AND_DRIVERS {
+            assert!(name.starts_with(&prefix), "{name}");
+        }
+        let before = names.len();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), before);
+    }
+}

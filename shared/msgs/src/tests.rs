@@ -622,3 +622,80 @@ fn zeroed_messages_carry_the_current_schema_version() {
     assert_eq!(m.header, Header::new(0, 0));
     assert_eq!(m.validate(0, None), Ok(()));
 }
+
+fn sim_truth() -> SimTruth {
+    let mut m = SimTruth::zeroed();
+    m.header = header();
+    m.sim_time = 12.5;
+    m.task_time = 12.5;
+    m.outcome = SimOutcome::Running.into();
+    m.object_count = 2;
+    m.tool_position = [0.6, 0.0, 0.8];
+    m.base_pose = [1.0, 0.2, 0.1];
+    m.object_positions[..6].copy_from_slice(&[2.0, 0.0, 0.45, 3.0, 1.0, 0.45]);
+    m.object_placed_time = [-1.0; MAX_SIM_OBJECTS];
+    m.object_placed_time[0] = 10.0;
+    m.object_placed_time[2..].iter_mut().for_each(|t| *t = 0.0);
+    m.held_object = 1;
+    m.gripper_opening = 0.05;
+    m.ee_acc_mean = 0.3;
+    m.ee_acc_max = 2.0;
+    m
+}
+
+#[test]
+fn sim_truth_accepts_a_valid_instance_and_rejects_each_bad_field() {
+    let good = sim_truth();
+    assert_eq!(check(&good), Ok(()));
+    assert_eq!(good.outcome(), Some(SimOutcome::Running));
+    let mut m = good;
+    m.outcome = 99;
+    assert_rejected(&m, "outcome", None, unknown_code);
+    let mut m = good;
+    m.object_count = MAX_SIM_OBJECTS as u32 + 1;
+    assert_rejected(&m, "object_count", None, out_of_range);
+    let mut m = good;
+    m.object_positions[6] = 1.0;
+    assert_rejected(&m, "object_positions", Some(6), inconsistent);
+    let mut m = good;
+    m.tool_position[1] = f64::NAN;
+    assert_rejected(&m, "tool_position", Some(1), not_finite);
+    let mut m = good;
+    m.held_object = 2;
+    assert_rejected(&m, "held_object", None, out_of_range);
+    let mut m = good;
+    m.object_placed_time[1] = -0.5;
+    assert_rejected(&m, "object_placed_time", Some(1), inconsistent);
+    let mut m = good;
+    m.object_placed_time[0] = 13.0;
+    assert_rejected(&m, "object_placed_time", Some(0), out_of_range);
+    let mut m = good;
+    m.task_time = 20.0;
+    assert_rejected(&m, "task_time", None, out_of_range);
+    let mut m = good;
+    m.ee_acc_max = f64::INFINITY;
+    assert_rejected(&m, "ee_acc_max", None, not_finite);
+}
+
+#[test]
+fn driver_status_accepts_a_valid_instance_and_rejects_each_bad_field() {
+    let mut good = DriverStatus::zeroed();
+    good.header = header();
+    good.mode = DriverMode::Stale.into();
+    good.hardware_ready = 1;
+    good.commands_received = 100;
+    good.limit_violations = 3;
+    good.clamped_commands = 2;
+    good.ignored_commands = 1;
+    assert_eq!(check(&good), Ok(()));
+    assert_eq!(good.mode(), Some(DriverMode::Stale));
+    let mut m = good;
+    m.mode = 7;
+    assert_rejected(&m, "mode", None, unknown_code);
+    let mut m = good;
+    m.hardware_ready = 2;
+    assert_rejected(&m, "hardware_ready", None, unknown_code);
+    let mut m = good;
+    m.limit_violations = 4;
+    assert_rejected(&m, "limit_violations", None, inconsistent);
+}

@@ -15,6 +15,7 @@ pub mod random;
 pub mod render;
 pub mod runner;
 pub mod scenario;
+pub mod sim_world;
 pub mod trial_camera;
 pub mod world;
 

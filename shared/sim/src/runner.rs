@@ -94,13 +94,14 @@ enum Controller {
 }
 
 /// The scene the camera sees: the fixed layout plus the cubes where they are now.
-struct SceneBuilder {
+pub(crate) struct SceneBuilder {
     fixed: Scene,
     cube_size: f64,
 }
 
 impl SceneBuilder {
-    fn new(world: &World) -> Self {
+    /// The fixed part of the scene of `world`.
+    pub(crate) fn new(world: &World) -> Self {
         let layout = world.layout();
         let mut fixed = Scene::default();
         for platform in &layout.platforms {
@@ -128,7 +129,8 @@ impl SceneBuilder {
         }
     }
 
-    fn scene(&self, world: &World) -> Scene {
+    /// The scene with the cubes where they are now.
+    pub(crate) fn scene(&self, world: &World) -> Scene {
         let mut scene = self.fixed.clone();
         for object in &world.truth().objects {
             let mut cube = SceneBox::cube(object.position(), 0.0, self.cube_size);
