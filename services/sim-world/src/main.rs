@@ -2,11 +2,15 @@
 //! (1 kHz) on the service loop's timer, from the newest hardware commands of the drivers, and
 //! publishes the arm, base and gripper state every step, palm-camera images at the camera rate
 //! (written in place in shared memory) and the ground truth ([`motm_msgs::SimTruth`]).
-
+//!
+//! | reads | publishes |
+//! | --- | --- |
+//! | `HW_ARM_COMMAND`, `HW_BASE_COMMAND`, `HW_GRIPPER_COMMAND` | `HW_ARM_STATE`, `HW_BASE_STATE`, `HW_GRIPPER_STATE` (every step), `CAMERA_IMAGE` (30 Hz, `Qos::large()`, stamped with the exposure time), `SIM_TRUTH` (`--truth-rate`, and at once when the outcome is decided) |
+//!
+//! Real time: each cycle runs the physics steps due since the first cycle (normally one, up to
+//! `--max-catch-up` after lost timer ticks; beyond that the simulation falls behind). A hardware
+//! command older than `--command-timeout` is braked to zero within the robot's limits.
 mod convert;
-
-#[path = "../../motm/src/config_dir.rs"]
-mod config_dir;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,6 +26,7 @@ use motm_msgs::{
 use motm_sim::Scenario;
 use motm_sim::runner::RunnerConfig;
 use motm_sim::sim_world::{HardwareInput, SimWorld, SimWorldConfig, scenario_path};
+use motm_wire::setup::resolve_config_dir;
 
 /// Exit code for bad input (flags, scenario, robot model).
 const EXIT_BAD_INPUT: u8 = 2;
@@ -44,8 +49,9 @@ struct Cli {
     /// Base speed, m/s (overrides the scenario's `base_speed`).
     #[arg(long)]
     base_speed: Option<f64>,
-    /// RNG seed (same meaning as `motm trial --seed`).
-    #[arg(long, default_value_t = 1)]
+    /// Trial seed (as `motm trial --seed`); perception must get the same one, since the camera
+    /// calibration error is drawn from it.
+    #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Physics rate, Hz.
     #[arg(long, default_value_t = 1000.0)]
@@ -68,7 +74,7 @@ struct Cli {
 
 /// Builds the world from the flags; every error is bad input.
 fn setup(cli: &Cli) -> Result<SimWorld, String> {
-    let config_dir = config_dir::resolve(cli.config_dir.clone());
+    let config_dir = resolve_config_dir(cli.config_dir.as_deref());
     let path = scenario_path(&config_dir, &cli.scenario);
     let mut scenario = Scenario::from_file(&path).map_err(|e| e.to_string())?;
     if let Some(v) = cli.base_speed {

@@ -11,11 +11,24 @@
 //! Choices (config values):
 //! - **Moving targets.** The holistic law is a pure P servo, which lags a target moving at v by
 //!   v/k. Each stage aims at the target predicted `1/servo_gain` ahead (lead compensation), which
-//!   removes the steady lag without changing the holistic law itself.
+//!   removes the steady lag without changing the holistic law itself. Arrival is judged against
+//!   the stage's point *without* the lead (the holistic `e_t` to the led point stays near
+//!   v/k ≈ 2 cm on a cube moving at 3 cm/s, so the holistic arrival test alone never fires).
+//! - **Grasp height.** The descent aims `grasp_depth` below the cube centre and the fingers close
+//!   only within `grasp_error` of that point, so the tool point is inside the grasp model's height
+//!   window (from 12 mm above to 25 mm below the centre) when the closure starts; closing at the
+//!   holistic `e_t < 0.02` left the fingertips on the cube's top edge and knocked it off.
 //! - **Orientation.** Top-down, keeping the tool's current yaw (the cube's yaw is not measured).
 //! - **Base stand-off.** The base does not drive closer than `base_standoff` to the target
 //!   (the holistic law alone would run it into the platform): its forward speed toward the
-//!   target is capped at the speed from which it can still stop there.
+//!   target is capped at the speed from which it can still stop there. Earlier pick platforms
+//!   (which the base leaves after the grasp) only keep it `platform_clearance` away. The cap cuts
+//!   the forward speed alone: the turn rate and the arm keep their command, so the holistic law
+//!   can still turn the base away (scaling the whole command to zero froze the robot at a
+//!   platform it had to leave). When an earlier platform blocks the way, the base turns in place
+//!   toward the side of the current goal at `escape_turn_rate` until the platform leaves its
+//!   path: the holistic facing term alone turns the base only as far as the tool, which can leave
+//!   the platform in the way for good.
 //! - **Closing** ends when the fingers reach `closed_opening` or after `closing_timeout`.
 
 use nalgebra::{Isometry3, Translation3, Vector3};
@@ -38,6 +51,16 @@ pub struct ReactiveConfig {
     /// Height of the pre-grasp point above the cube centre, m: high enough that the fingertips
     /// (45 mm below the tool point) clear the cube top on the way in.
     pub approach_height: f64,
+    /// How far below the cube centre the tool point aims for the grasp, m. The grasp model's
+    /// height window puts the tool point between 12 mm above and 25 mm below the centre (45 mm
+    /// fingers, tips 5 mm past the tool point, 30 mm cube, 8 mm least pad overlap); 5 mm below
+    /// sits near its middle and keeps the fingertips 5 mm above the platform top.
+    pub grasp_depth: f64,
+    /// The fingers start closing once the tool-frame L1 error to the grasp point (without the
+    /// lead) is below this, m. 10 mm keeps the tool point inside the height window and the cube
+    /// within the 15 mm lateral tolerance with room for perception and odometry error; the
+    /// holistic arrival threshold (20 mm) does not.
+    pub grasp_error: f64,
     /// Height of the waypoint above the grasp point after closing, m.
     pub lift_height: f64,
     /// Height of the release point above the container rim, m.
@@ -54,6 +77,15 @@ pub struct ReactiveConfig {
     /// holistic law has no obstacle model and would drive the base into the platform; inside
     /// this distance its forward speed toward the target is clamped to zero and the arm reaches.
     pub base_standoff: f64,
+    /// Closest the base centre may drive toward an earlier pick platform (one it is leaving),
+    /// measured along its heading, m. The base may have to turn in place there to get out of
+    /// the platform's way, so this is the radius its footprint sweeps when turning (Frankie's
+    /// 0.68 × 0.47 m footprint: 0.41 m half-diagonal) plus a platform's half-diagonal (0.21 m
+    /// for the simulator's 0.3 m platform) plus 13 cm for odometry drift.
+    pub platform_clearance: f64,
+    /// Turn rate while an earlier platform blocks the way, rad/s (a third of Frankie's 1.5 rad/s
+    /// limit: a quarter turn takes about 3 s).
+    pub escape_turn_rate: f64,
     /// Half-width of the strip ahead of the base in which a platform counts as in its path, m
     /// (half the base width plus half a platform plus a margin).
     pub base_corridor: f64,
@@ -67,6 +99,8 @@ impl Default for ReactiveConfig {
         Self {
             holistic: HolisticConfig::default(),
             approach_height: 0.1,
+            grasp_depth: 0.005,
+            grasp_error: 0.01,
             lift_height: 0.15,
             release_height: 0.1,
             closed_opening: 0.032,
@@ -74,6 +108,8 @@ impl Default for ReactiveConfig {
             opening_time: 0.5,
             press_depth: 0.01,
             base_standoff: 0.7,
+            platform_clearance: 0.75,
+            escape_turn_rate: 0.5,
             base_corridor: 0.55,
             max_base_speed: 0.3,
         }
@@ -200,9 +236,9 @@ impl ReactiveBaseline {
         self.enter(stage, t);
     }
 
-    /// The point the tool should be at in the current stage.
-    fn goal(&self, kind: TaskKind, target: &TargetEstimate) -> Vector3<f64> {
-        let lead = 1.0 / self.config.holistic.servo_gain;
+    /// The point the tool should be at in the current stage, for the target predicted `lead`
+    /// seconds ahead.
+    fn goal(&self, kind: TaskKind, target: &TargetEstimate, lead: f64) -> Vector3<f64> {
         let aim = target.predict(lead);
         let up = Vector3::z();
         match (kind, self.stage) {
@@ -210,33 +246,64 @@ impl ReactiveBaseline {
             (TaskKind::Pick, ReactiveStage::Lift) => {
                 self.anchor.unwrap_or(aim) + up * self.config.lift_height
             }
-            (TaskKind::Pick, _) => aim,
+            (TaskKind::Pick, _) => aim - up * self.config.grasp_depth,
             (TaskKind::Place, _) => aim + up * self.config.release_height,
             (TaskKind::PressButton, ReactiveStage::Descend) => aim - up * self.config.press_depth,
             (TaskKind::PressButton, _) => aim + up * self.config.approach_height,
         }
     }
 
-    /// Caps the forward speed so the base can still stop `base_standoff` short of any pick
-    /// platform (earlier or current) that lies ahead in its path (within `base_corridor` of its
-    /// heading line).
+    /// Caps the forward speed so the base can still stop short of any pick platform that lies
+    /// ahead in its path (within `base_corridor` of its heading line): `base_standoff` short of
+    /// the current target's, `platform_clearance` short of earlier ones.
     fn clamp_forward_speed(&self, base: &BasePose, v: f64) -> f64 {
         let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
         let from = nalgebra::Vector2::new(base.x, base.y);
         let last = (self.task + 1).min(self.tasks.len());
         let room = self.tasks[..last]
             .iter()
-            .filter(|t| t.kind == TaskKind::Pick)
-            .filter_map(|t| {
+            .enumerate()
+            .filter(|(_, t)| t.kind == TaskKind::Pick)
+            .filter_map(|(index, t)| {
                 let offset = t.position.xy() - from;
                 let along = offset.dot(&heading);
                 let beside = (offset - heading * along).norm();
+                let keep = if index == self.task {
+                    self.config.base_standoff
+                } else {
+                    self.config.platform_clearance
+                };
                 (along > 0.0 && beside < self.config.base_corridor)
-                    .then_some((along - self.config.base_standoff).max(0.0))
+                    .then_some((along - keep).max(0.0))
             })
             .fold(f64::INFINITY, f64::min);
         let stoppable = (2.0 * self.base_deceleration * room).sqrt();
         v.clamp(-stoppable, stoppable)
+    }
+
+    /// The turn that takes the base out of an earlier pick platform's way, when one blocks it:
+    /// the platform lies in the strip ahead within `platform_clearance`, and the turn is toward
+    /// the side of `goal` (world point) relative to the platform.
+    fn escape_turn(&self, base: &BasePose, goal: &Vector3<f64>) -> Option<f64> {
+        let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin());
+        let from = nalgebra::Vector2::new(base.x, base.y);
+        let to_goal = goal.xy() - from;
+        self.tasks[..self.task.min(self.tasks.len())]
+            .iter()
+            .filter(|t| t.kind == TaskKind::Pick)
+            .map(|t| t.position.xy() - from)
+            .filter(|offset| {
+                let along = offset.dot(&heading);
+                let beside = (offset - heading * along).norm();
+                along > 0.0
+                    && along <= self.config.platform_clearance
+                    && beside < self.config.base_corridor
+            })
+            .map(|offset| {
+                let side = offset.perp(&to_goal);
+                self.config.escape_turn_rate * if side >= 0.0 { 1.0 } else { -1.0 }
+            })
+            .next()
     }
 
     /// One control cycle.
@@ -245,7 +312,19 @@ impl ReactiveBaseline {
             return self.idle();
         };
         let tool = self.robot.tool_pose(&input.base, input.arm_q);
-        let goal = self.goal(task.kind, &input.target);
+        let goal = self.goal(
+            task.kind,
+            &input.target,
+            1.0 / self.config.holistic.servo_gain,
+        );
+        // Distance to the stage's point where the target is now (no lead), in the holistic
+        // law's own measure (L1 norm of the tool-frame translation).
+        let stage_error = tool
+            .inverse_transform_point(&self.goal(task.kind, &input.target, 0.0).into())
+            .coords
+            .abs()
+            .sum();
+        let arrived = stage_error < self.config.holistic.arrival_error;
         let rotation = top_down(tool_yaw(&tool.rotation));
         let target = Isometry3::from_parts(Translation3::from(goal), rotation);
         let out = self.controller.step(&HolisticInput {
@@ -253,36 +332,36 @@ impl ReactiveBaseline {
             arm_q: input.arm_q,
             target,
         });
-        // Speed caps scale the whole command (base and arm alike), so the tool still moves along
-        // the direction the QP chose instead of the arm assuming a base motion that is cut.
-        let allowed = self
-            .clamp_forward_speed(&input.base, out.base.v)
-            .abs()
-            .min(self.config.max_base_speed);
-        let scale = if out.base.v.abs() > allowed {
-            allowed / out.base.v.abs()
+        // The top speed scales the whole command (base and arm alike), so the tool still moves
+        // along the direction the QP chose instead of the arm assuming a base motion that is cut.
+        let scale = if out.base.v.abs() > self.config.max_base_speed {
+            self.config.max_base_speed / out.base.v.abs()
         } else {
             1.0
         };
-        let base = BaseVelocity {
-            v: out.base.v * scale,
-            omega: out.base.omega * scale,
+        // The stand-off cuts the forward speed alone, so the base can still turn away.
+        let base = match self.escape_turn(&input.base, &goal) {
+            Some(omega) => BaseVelocity { v: 0.0, omega },
+            None => BaseVelocity {
+                v: self.clamp_forward_speed(&input.base, out.base.v * scale),
+                omega: out.base.omega * scale,
+            },
         };
         let arm_qd: Vec<f64> = out.arm_qd.iter().map(|qd| qd * scale).collect();
         let elapsed = input.t - self.stage_start;
         match (task.kind, self.stage) {
-            (_, ReactiveStage::Approach) if out.arrived => {
+            (_, ReactiveStage::Approach) if arrived => {
                 let next = match task.kind {
                     TaskKind::Place => ReactiveStage::Gripper,
                     _ => ReactiveStage::Descend,
                 };
                 self.enter(next, input.t);
             }
-            (TaskKind::Pick, ReactiveStage::Descend) if out.arrived => {
+            (TaskKind::Pick, ReactiveStage::Descend) if stage_error < self.config.grasp_error => {
                 self.gripper = GripperCommand::Close;
                 self.enter(ReactiveStage::Gripper, input.t);
             }
-            (TaskKind::PressButton, ReactiveStage::Descend) if out.arrived => {
+            (TaskKind::PressButton, ReactiveStage::Descend) if arrived => {
                 self.enter(ReactiveStage::Lift, input.t);
             }
             (TaskKind::Pick, ReactiveStage::Gripper)
@@ -298,7 +377,7 @@ impl ReactiveBaseline {
                     self.next_task(input.t);
                 }
             }
-            (_, ReactiveStage::Lift) if out.arrived => self.next_task(input.t),
+            (_, ReactiveStage::Lift) if arrived => self.next_task(input.t),
             _ => {}
         }
         if task.kind == TaskKind::PressButton {
@@ -326,5 +405,126 @@ impl ReactiveBaseline {
             qp_status: ResolveStatus::Solved,
             position_error: 0.0,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn frankie() -> Robot {
+        let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        Robot::load(&config_dir, "frankie").expect("frankie loads")
+    }
+
+    /// Pick a cube at (2, 0, 0.45), place it at (3.2, 2.4, 0.35) (exp1's layout).
+    fn exp1_baseline() -> ReactiveBaseline {
+        let tasks = vec![
+            MissionTask {
+                kind: TaskKind::Pick,
+                item: 0,
+                position: Vector3::new(2.0, 0.0, 0.45),
+            },
+            MissionTask {
+                kind: TaskKind::Place,
+                item: 0,
+                position: Vector3::new(3.2, 2.4, 0.35),
+            },
+        ];
+        ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks)
+    }
+
+    fn step_at(
+        baseline: &mut ReactiveBaseline,
+        base: BasePose,
+        target: Vector3<f64>,
+    ) -> ReactiveOutput {
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        baseline.step(&ReactiveInput {
+            t: 0.0,
+            base,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate::fixed(target),
+        })
+    }
+
+    #[test]
+    fn descent_aims_below_the_cube_centre_inside_the_grasp_window() {
+        let mut baseline = exp1_baseline();
+        baseline.stage = ReactiveStage::Descend;
+        let cube = Vector3::new(2.0, 0.0, 0.45);
+        let goal = baseline.goal(TaskKind::Pick, &TargetEstimate::fixed(cube), 0.0);
+        let below = cube.z - goal.z;
+        assert!((below - baseline.config.grasp_depth).abs() < 1e-12);
+        // Tool point between 12 mm above and 25 mm below the centre, even at the full error.
+        assert!(below + baseline.config.grasp_error < 0.025);
+        assert!(below - baseline.config.grasp_error > -0.012);
+    }
+
+    #[test]
+    fn lead_does_not_count_toward_arrival_on_a_moving_cube() {
+        let mut baseline = exp1_baseline();
+        let base = BasePose::default();
+        let tool = baseline
+            .robot
+            .tool_pose(&base, &baseline.robot.config.ready_pose)
+            .translation
+            .vector;
+        // The cube sits right under the approach point and moves at 4.5 cm/s: the led point is
+        // 3 cm ahead, yet the tool is where the stage wants it now.
+        let cube = tool - Vector3::z() * baseline.config.approach_height;
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        let out = baseline.step(&ReactiveInput {
+            t: 0.0,
+            base,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate {
+                position: cube,
+                velocity: Vector3::new(0.045, 0.0, 0.0),
+            },
+        });
+        assert!(out.position_error >= baseline.config.holistic.arrival_error);
+        assert_eq!(out.stage, ReactiveStage::Descend);
+    }
+
+    #[test]
+    fn base_stops_short_of_the_pick_platform() {
+        let mut baseline = exp1_baseline();
+        let at_standoff = BasePose {
+            x: 2.0 - baseline.config.base_standoff,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(&mut baseline, at_standoff, Vector3::new(2.0, 0.0, 0.45));
+        assert!(out.base.v <= 1e-9, "v = {}", out.base.v);
+        // Far away the base drives at the top speed.
+        let mut far = exp1_baseline();
+        let out = step_at(&mut far, BasePose::default(), Vector3::new(2.0, 0.0, 0.45));
+        assert!((out.base.v - far.config.max_base_speed).abs() < 1e-9);
+    }
+
+    #[test]
+    fn base_turns_out_of_the_way_of_a_platform_it_has_picked_from() {
+        let mut baseline = exp1_baseline();
+        baseline.task = 1;
+        let facing_platform = BasePose {
+            x: 1.3,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(&mut baseline, facing_platform, Vector3::new(3.2, 2.4, 0.35));
+        assert_eq!(out.base.v, 0.0);
+        // The container is to the left: turn left.
+        assert!((out.base.omega - baseline.config.escape_turn_rate).abs() < 1e-12);
+        // Once the platform is out of the strip ahead, the holistic law drives again.
+        let clear = BasePose {
+            yaw: 1.0,
+            ..facing_platform
+        };
+        let out = step_at(&mut baseline, clear, Vector3::new(3.2, 2.4, 0.35));
+        assert!(out.base.v > 0.0);
     }
 }

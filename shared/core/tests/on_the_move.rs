@@ -132,11 +132,9 @@ fn run(cube_start: Vector3<f64>, cube_velocity: Vector3<f64>, container: Vector3
                 let between_fingers = cube_in_tool.x.abs() < 0.01
                     && cube_in_tool.y.abs() < (OPEN - CUBE) / 2.0
                     && cube_in_tool.z.abs() < 0.02;
-                if opening <= CUBE {
-                    if between_fingers && released_at.is_none() {
-                        held = true;
-                        opening = CUBE;
-                    }
+                if opening <= CUBE && between_fingers && released_at.is_none() {
+                    held = true;
+                    opening = CUBE;
                 }
             }
             GripperCommand::Open => {

@@ -3,10 +3,17 @@
 //! a [`VelocityDriver`] (the limits are enforced there) and publishes the hardware command, the
 //! re-published state and a [`DriverStatus`].
 //!
+//! | process | reads | publishes |
+//! | --- | --- | --- |
+//! | panda-driver (1 kHz) | `ARM_VELOCITY_COMMAND` (every sample), `ARM_GRIPPER_COMMAND`, `CONTROL_ACTIVE_CONTROLLER`, `SAFETY_SAFE_STOP`, `HW_ARM_STATE`, `HW_GRIPPER_STATE` | `HW_ARM_COMMAND`, `HW_GRIPPER_COMMAND`, `ARM_JOINT_STATE`, `ARM_GRIPPER_STATE` (both waking), `ARM_DRIVER_STATUS` |
+//! | ld60-driver (50 Hz) | `BASE_VELOCITY_COMMAND` (every sample), `SAFETY_SAFE_STOP`, `HW_BASE_STATE` | `HW_BASE_COMMAND`, `BASE_ODOMETRY` (waking), `BASE_DRIVER_STATUS` |
+//!
+//! The state is re-published at the driver's own rate, stamped with the hardware's stamp.
+//! [`DriverStatus`] (at `--status-rate`) carries `limit_violations` (commands that arrived
+//! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
+//! self-check, always 0) and `max_command_gap_ns`.
+//!
 //! Backends: only `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services).
-
-#[path = "../../../services/motm/src/config_dir.rs"]
-pub mod config_dir;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,6 +29,7 @@ use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverC
 use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
 use motm_sim::Scenario;
 use motm_sim::sim_world::scenario_path;
+use motm_wire::setup::resolve_config_dir;
 
 /// Robot used when neither `--robot` nor `--scenario` names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
@@ -76,7 +84,7 @@ impl DriverArgs {
     /// Loads the robot model: `--robot`, else the robot of `--scenario`, else frankie. A
     /// `--robot` that is not the scenario's robot is an error.
     pub fn load_robot(&self) -> Result<Robot, String> {
-        let dir = config_dir::resolve(self.config_dir.clone());
+        let dir = resolve_config_dir(self.config_dir.as_deref());
         let from_scenario = match &self.scenario {
             Some(name) => {
                 let path = scenario_path(&dir, name);

@@ -765,9 +765,6 @@ code_enum!(
     }
 );
 
-mod supervision;
-pub use supervision::*;
-
 /// Largest number of objects a [`SimTruth`] reports.
 pub const MAX_SIM_OBJECTS: usize = 8;
 
@@ -955,3 +952,6 @@ message!(DriverStatus, |m, c| {
     }
     Ok(())
 });
+
+mod supervision;
+pub use supervision::*;

@@ -2,7 +2,7 @@
 //! and the trial metrics, stepped one physics period at a time from the latest hardware
 //! commands. The sim-world process wraps this; it must behave like the in-process runner
 //! ([`crate::runner`]), so it takes its rates, timeouts, camera and metric settings from the same
-//! [`RunnerConfig`] and seeds the camera the same way.
+//! [`RunnerConfig`] and builds the camera the same way ([`PalmCamera::for_trial`]).
 //!
 //! Hardware commands that stop coming are not held forever: like the Panda's communication
 //! reflex and the LD-60's own command timeout, once the newest command is older than
@@ -10,7 +10,6 @@
 //! the robot's velocity, acceleration and jerk limits (a [`CommandLimiter`] in its stale mode).
 //! Fresh commands pass through unchanged: limiting them is the drivers' job.
 
-use motm_core::camera::CameraConfig;
 use motm_core::command_limiter::{AxisLimits, CommandLimiter, CommandLimiterConfig, LimiterInput};
 use motm_core::{BASE_JOINTS, BaseVelocity, GripperCommand, ModelError, Robot};
 
@@ -19,15 +18,6 @@ use crate::render::{CameraFrame, PalmCamera, Scene};
 use crate::runner::{RunnerConfig, SceneBuilder};
 use crate::scenario::Scenario;
 use crate::world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World};
-
-/// The palm camera of a trial: `base` with the scenario's pixel noise and extrinsic error,
-/// seeded from the trial seed (the in-process runner and sim-world use the same draw).
-pub fn palm_camera(base: &CameraConfig, scenario: &Scenario, seed: u64) -> PalmCamera {
-    let mut config = *base;
-    config.pixel_noise_std = scenario.noise.camera_pixel_std;
-    config.extrinsic_error = scenario.noise.camera_extrinsic_error;
-    PalmCamera::new(&config, seed ^ 0x5eed_ca3e_0000_0001)
-}
 
 /// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
 pub fn scenario_path(config_dir: &std::path::Path, name: &str) -> std::path::PathBuf {
@@ -149,7 +139,7 @@ impl SimWorld {
         let steps_per_metric = (control_dt / runner.physics_step).round().max(1.0) as u64;
         let tasks = scenario.mission_tasks().len();
         Ok(Self {
-            camera: palm_camera(&runner.camera, scenario, seed),
+            camera: PalmCamera::for_trial(&runner.camera, scenario, seed),
             scenes: SceneBuilder::new(&world),
             no_scene: Scene::default(),
             meter: AccelerationMeter::new(&runner.acceleration, control_dt),
