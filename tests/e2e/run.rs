@@ -125,3 +125,28 @@ fn motm_run_rejects_a_bad_stack_config_with_exit_code_2() {
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn motm_run_names_missing_service_binaries_and_exits_1() {
+    let dir = std::env::temp_dir().join(format!("motm-e2e-missing-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let stack = dir.join("missing.toml");
+    std::fs::write(
+        &stack,
+        "robot = \"frankie\"\nscenario = \"exp1-dynamic\"\n\
+         [[process]]\nname = \"no-such-service\"\n",
+    )
+    .unwrap();
+    let prefix = format!("motme2emissing{}_", std::process::id());
+    let out = motm(&["run", "--config", stack.to_str().unwrap()], &prefix);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("service binaries missing") && stderr.contains("no-such-service"),
+        "{stderr}"
+    );
+    // Nothing was started, so nothing of the prefix exists.
+    let ipc = IpcConfig { prefix };
+    assert!(motm_bus::shared_memory_entries(&ipc).unwrap().is_empty());
+    let _ = std::fs::remove_dir_all(dir);
+}
