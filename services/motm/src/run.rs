@@ -506,3 +506,52 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use motm_msgs::Message;
+
+    fn truth(outcome: SimOutcome, placed: &[f64]) -> SimTruth {
+        let mut t = SimTruth::zeroed();
+        t.sim_time = 13.0;
+        t.task_time = 12.5;
+        t.outcome = outcome.into();
+        t.object_count = placed.len() as u32;
+        t.object_placed_time[..placed.len()].copy_from_slice(placed);
+        t.ee_acc_mean = 0.4;
+        t
+    }
+
+    #[test]
+    fn success_gives_mtph_and_round_trips_from_placement_times() {
+        let t = truth(SimOutcome::Success, &[12.5, 6.0]);
+        let r = trial_result(Some(&t), None, 14.0);
+        assert!(r.success && r.failure.is_none());
+        assert!((r.mtph - 3600.0 / 12.5).abs() < 1e-9);
+        assert_eq!(r.round_trips_s, [6.0, 6.5]);
+        assert_eq!(
+            (r.sim_time_s, r.wall_time_s, r.ee_acc_mean),
+            (13.0, 14.0, 0.4)
+        );
+    }
+
+    #[test]
+    fn failures_are_named_as_motm_trial_names_them() {
+        let t = truth(SimOutcome::KnockedOff, &[-1.0]);
+        let r = trial_result(Some(&t), None, 1.0);
+        assert_eq!(r.failure.as_deref(), Some("knocked_off"));
+        assert!(!r.success && r.mtph == 0.0 && r.round_trips_s.is_empty());
+        // A stack failure overrides even a success reported by the world.
+        let t = truth(SimOutcome::Success, &[5.0]);
+        let r = trial_result(Some(&t), Some("interrupted".into()), 1.0);
+        assert_eq!(
+            (r.success, r.failure.as_deref()),
+            (false, Some("interrupted"))
+        );
+        let r = trial_result(Some(&truth(SimOutcome::Running, &[])), None, 1.0);
+        assert_eq!(r.failure.as_deref(), Some("not_finished"));
+        let r = trial_result(None, None, 1.0);
+        assert_eq!(r.failure.as_deref(), Some("no_truth_from_sim_world"));
+    }
+}

@@ -188,9 +188,21 @@ args = ["--name", "heartbeat-probe", "--rate", "{rate}"]
     path
 }
 
-fn start_supervisor(ipc: &IpcConfig, stack: &Path) -> std::process::Child {
+/// Kills the supervisor if a test fails before stopping it, so it never outlives the test.
+struct SupervisorGuard(std::process::Child);
+
+impl Drop for SupervisorGuard {
+    fn drop(&mut self) {
+        if self.0.try_wait().ok().flatten().is_none() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+fn start_supervisor(ipc: &IpcConfig, stack: &Path) -> SupervisorGuard {
     let bin_dir = Path::new(PROBE).parent().unwrap();
-    Command::new(SUPERVISOR)
+    let child = Command::new(SUPERVISOR)
         .arg("--stack")
         .arg(stack)
         .arg("--bin-dir")
@@ -199,7 +211,8 @@ fn start_supervisor(ipc: &IpcConfig, stack: &Path) -> std::process::Child {
         .env(motm_bus::PREFIX_ENV, &ipc.prefix)
         .stdin(Stdio::null())
         .spawn()
-        .expect("supervisor starts")
+        .expect("supervisor starts");
+    SupervisorGuard(child)
 }
 
 /// Waits for a supervisor status that satisfies `condition`, returning it.
@@ -223,7 +236,8 @@ fn wait_status(
 fn supervisor_binary_restarts_a_killed_child_and_stops_cleanly_on_sigterm() {
     let ipc = ipc("binary");
     let stack = probe_stack("binary");
-    let mut supervisor = start_supervisor(&ipc, &stack);
+    let mut guard = start_supervisor(&ipc, &stack);
+    let supervisor = &mut guard.0;
     let mut pids = Vec::new();
     {
         let observer = Bus::open_with("observer", &ipc).unwrap();
@@ -268,7 +282,8 @@ fn supervisor_binary_restarts_a_killed_child_and_stops_cleanly_on_sigterm() {
 fn children_do_not_outlive_a_killed_supervisor() {
     let ipc = ipc("orphan");
     let stack = probe_stack("orphan");
-    let mut supervisor = start_supervisor(&ipc, &stack);
+    let mut guard = start_supervisor(&ipc, &stack);
+    let supervisor = &mut guard.0;
     let probe_pid;
     {
         let observer = Bus::open_with("observer", &ipc).unwrap();
