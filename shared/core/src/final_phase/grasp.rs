@@ -130,13 +130,7 @@ impl GraspController {
                 let horizontal = (grasp_point - input.tool_pose.translation.vector)
                     .xy()
                     .norm();
-                let funnel = (horizontal / self.config.capture_radius.max(1e-6))
-                    .powi(2)
-                    .min(1.0);
-                let raised = grasp_point
-                    + Vector3::z()
-                        * (self.config.descent_slope * horizontal
-                            + self.config.fingertip_clearance * funnel);
+                let raised = grasp_point + Vector3::z() * (self.config.descent_slope * horizontal);
                 (raised, input.target.velocity)
             }
             _ => (self.grasp_point(input), input.target.velocity),

@@ -446,14 +446,6 @@ pub struct GraspConfig {
     /// horizontal error, so the fingers come down onto the object rather than sweep into it
     /// from the side (1.0: a 45° cone; 0 disables it).
     pub descent_slope: f64,
-    /// Extra height of the descent funnel away from the grasp axis, m: the goal is raised by
-    /// `fingertip_clearance × min(1, (e_h / capture_radius)²)` on top of the cone, so the tool
-    /// only comes down to the cube once it is centred. 0.03 m: the fingertips reach 5 mm below
-    /// the tool point, the cube top is 15 mm above its centre, plus 10 mm margin.
-    pub fingertip_clearance: f64,
-    /// Horizontal error within which the fingers may come down past the cube top, m (0.02: the
-    /// open fingers leave 25 mm each side of a 30 mm cube).
-    pub capture_radius: f64,
     /// The grasp counts as closed when the finger opening falls to this, m (0.032: the 30 mm
     /// cube plus 2 mm).
     pub closed_opening: f64,
@@ -473,8 +465,6 @@ impl Default for GraspConfig {
             close_max_tilt: 5f64.to_radians(),
             grasp_offset: [0.0; 3],
             descent_slope: 1.0,
-            fingertip_clearance: 0.03,
-            capture_radius: 0.02,
             closed_opening: 0.032,
             closing_timeout: 1.0,
             lift_height: 0.1,
@@ -497,8 +487,6 @@ impl GraspConfig {
             ],
         )?;
         require_non_negative(file, "grasp.descent_slope", self.descent_slope)?;
-        require_non_negative(file, "grasp.fingertip_clearance", self.fingertip_clearance)?;
-        require_non_negative(file, "grasp.capture_radius", self.capture_radius)?;
         if let Some(bad) = self.grasp_offset.iter().find(|x| !x.is_finite()) {
             return Err(ModelError::invalid(
                 file,
