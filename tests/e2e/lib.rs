@@ -9,11 +9,48 @@ pub fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// Runs `motm <args>` via `cargo run` (so `motm run` builds any missing service binary) with
-/// the iceoryx2 prefix `prefix`.
+/// The packages of the stack's binaries: `motm run` only builds missing ones, so the tests
+/// build them all first to never run a stale binary.
+pub const STACK_PACKAGES: [&str; 11] = [
+    "motm",
+    "motm-supervisor",
+    "motm-sim-world",
+    "motm-panda-driver",
+    "motm-ld60-driver",
+    "motm-perception",
+    "motm-base-planner",
+    "motm-reacher",
+    "motm-final-phase",
+    "motm-qp-resolver",
+    "motm-watchdog",
+];
+
+/// Builds [`STACK_PACKAGES`] once per test process.
+fn build_stack() {
+    static BUILD: std::sync::Once = std::sync::Once::new();
+    BUILD.call_once(|| {
+        let mut command = Command::new(cargo());
+        command
+            .current_dir(workspace_root())
+            .args(["build", "--quiet"]);
+        for package in STACK_PACKAGES {
+            command.args(["-p", package]);
+        }
+        let status = command.status().expect("cargo build");
+        assert!(status.success(), "cargo build of the stack failed");
+    });
+}
+
+/// The Cargo that runs the tests.
+fn cargo() -> String {
+    std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
+}
+
+/// Runs `motm <args>` via `cargo run`, after building every binary of the stack, with the
+/// iceoryx2 prefix `prefix`.
 pub fn motm(args: &[&str], prefix: &str) -> Output {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    Command::new(cargo)
+    build_stack();
+    Command::new(cargo())
         .current_dir(workspace_root())
         .args(["run", "--quiet", "-p", "motm", "--"])
         .args(args)
