@@ -27,6 +27,9 @@ enum BenchCommand {
     /// Per-hop latency between two processes: iceoryx2 and a Unix-domain socket, 64 B and a
     /// camera image.
     Ipc(crate::bench_ipc::IpcArgs),
+    /// End-to-end latency of the running stack: from a camera frame's exposure stamp to the
+    /// joint command that used it (median, p99 and max µs over one `motm run`).
+    E2e(crate::run::RunArgs),
     /// Echo peer of `motm bench ipc` (started by it).
     #[command(hide = true)]
     IpcEcho(crate::bench_ipc::EchoArgs),
@@ -55,6 +58,7 @@ pub fn run(config_dir: &Path, args: &BenchArgs) -> Result<(), String> {
     match &args.command {
         BenchCommand::Qp(qp) => run_qp(config_dir, qp),
         BenchCommand::Ipc(ipc) => crate::bench_ipc::run(ipc),
+        BenchCommand::E2e(run) => run_e2e(config_dir, run),
         BenchCommand::IpcEcho(echo) => crate::bench_ipc::run_echo(echo),
     }
 }
@@ -69,6 +73,40 @@ fn summarize(samples: &mut [f64]) -> (f64, f64, f64) {
     samples.sort_by(f64::total_cmp);
     let at = |p: f64| samples[((samples.len() - 1) as f64 * p).round() as usize];
     (at(0.5), at(0.99), at(1.0))
+}
+
+/// `motm bench e2e`: one `motm run` with every QP cycle's camera-to-command latency recorded.
+fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> {
+    let (report, mut latencies) =
+        crate::run::run_stack(config_dir, args, true).map_err(|e| e.to_string())?;
+    if latencies.is_empty() {
+        return Err("no QP cycle reported a camera-frame stamp".into());
+    }
+    let samples = latencies.len();
+    let (median, p99, max) = summarize(&mut latencies);
+    let summary = json!({
+        "median_us": median,
+        "p99_us": p99,
+        "max_us": max,
+        "samples": samples,
+        "success": report.trial.success,
+        "control_rate_hz": report.control_rate_hz,
+        "scenario": report.scenario,
+    });
+    if args.json {
+        println!("{summary}");
+    } else {
+        println!(
+            "camera frame → joint command over {samples} QP cycles at {} Hz: median {median:.0} µs, p99 {p99:.0} µs, max {max:.0} µs (run {})",
+            report.control_rate_hz,
+            if report.trial.success {
+                "succeeded"
+            } else {
+                "failed"
+            }
+        );
+    }
+    Ok(())
 }
 
 fn run_qp(config_dir: &Path, args: &QpArgs) -> Result<(), String> {

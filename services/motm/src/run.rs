@@ -13,8 +13,10 @@ use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Qos, ServiceLoop};
-use motm_msgs::{DriverStatus, Heartbeat, SimOutcome, SimTruth, SupervisorStatus, services};
+use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Qos, ServiceLoop, Subscriber};
+use motm_msgs::{
+    DriverStatus, Heartbeat, QpStatus, SimOutcome, SimTruth, SupervisorStatus, services,
+};
 use motm_sim::Scenario;
 use motm_sim::experiment::TrialResult;
 use motm_supervisor::{StackConfig, binaries};
@@ -102,12 +104,22 @@ struct Watch {
     heartbeats: Vec<(String, Latest<Heartbeat>)>,
     /// Last heartbeat seen per process (kept when the process goes away).
     last_beats: Vec<Option<Heartbeat>>,
+    /// QP status stream, when end-to-end latency is measured (`motm bench e2e`).
+    qp_status: Option<Subscriber<QpStatus>>,
+    /// Camera-exposure-to-joint-command latencies seen so far, µs.
+    latencies_us: Vec<f64>,
 }
 
 impl Watch {
-    fn new(bus: &Bus, names: &[String]) -> Result<Self, motm_bus::BusError> {
+    fn new(bus: &Bus, names: &[String], measure_latency: bool) -> Result<Self, motm_bus::BusError> {
         let qos = Qos::default();
         Ok(Self {
+            qp_status: if measure_latency {
+                Some(Subscriber::new(bus, services::CONTROL_QP_STATUS, &qos)?)
+            } else {
+                None
+            },
+            latencies_us: Vec::new(),
             truth: Latest::new(bus, services::SIM_TRUTH, &qos)?,
             status: Latest::new(bus, services::SUPERVISOR_STATUS, &qos)?,
             arm_driver: Latest::new(bus, services::ARM_DRIVER_STATUS, &qos)?,
@@ -124,6 +136,15 @@ impl Watch {
     fn update(&mut self) {
         // A failed read keeps the previous values; the report says what was seen.
         let _ = self.truth.update();
+        if let Some(qp) = self.qp_status.as_mut() {
+            while let Ok(Some(sample)) = qp.receive() {
+                let status: &QpStatus = &sample;
+                if status.image_stamp_ns > 0 {
+                    let latency = status.header.stamp_ns.saturating_sub(status.image_stamp_ns);
+                    self.latencies_us.push(latency as f64 / 1e3);
+                }
+            }
+        }
         let _ = self.status.update();
         let _ = self.arm_driver.update();
         let _ = self.base_driver.update();
@@ -298,7 +319,13 @@ fn stop_supervisor(supervisor: &mut Child, grace: Duration) -> Option<std::proce
 }
 
 /// `motm run`.
-pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
+/// Runs the stack once; `measure_latency` also records the camera-to-command latency of every
+/// QP cycle (the watch loop then runs faster than the control rate so no sample is missed).
+pub fn run_stack(
+    config_dir: &Path,
+    args: &RunArgs,
+    measure_latency: bool,
+) -> Result<(RunReport, Vec<f64>), CliError> {
     let bad = |e: String| CliError::BadInput(e);
     let stack_path = StackConfig::resolve(config_dir, &args.config);
     let stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
@@ -382,9 +409,10 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
     names.push("supervisor".into());
     let watched = (|| -> Result<_, motm_bus::BusError> {
         let bus = Bus::open_with("motm-run", &ipc)?;
-        let mut watch = Watch::new(&bus, &names)?;
+        let mut watch = Watch::new(&bus, &names, measure_latency)?;
         let mut failure = None;
-        let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(20.0))?;
+        let watch_rate = if measure_latency { 4.0 * rate } else { 20.0 };
+        let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(watch_rate))?;
         let exit = service.run_periodic(|_| {
             watch.update();
             if watch
@@ -410,6 +438,7 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
         }
         Ok((
             trial_result(watch.truth.get(), failure, wall.elapsed().as_secs_f64()),
+            std::mem::take(&mut watch.latencies_us),
             watch.processes(),
             [
                 watch.arm_driver.get().copied(),
@@ -425,7 +454,8 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
     let _ = unsafe { motm_bus::remove_domain(&ipc) };
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
-    let (trial, processes, drivers) = watched.map_err(|e| CliError::Failed(e.to_string()))?;
+    let (trial, latencies, processes, drivers) =
+        watched.map_err(|e| CliError::Failed(e.to_string()))?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }
@@ -445,11 +475,18 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
         ipc_prefix: ipc.prefix.clone(),
         stale_shm_entries: stale,
     };
+    Ok((report, latencies))
+}
+
+/// `motm run`.
+pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
+    let (report, _) = run_stack(config_dir, args, false)?;
     print_report(&report, args.json)?;
+    let stale = report.stale_shm_entries;
     if stale > 0 {
         return Err(CliError::Failed(format!(
             "{stale} iceoryx2 resource(s) of prefix {} left behind",
-            ipc.prefix
+            report.ipc_prefix
         )));
     }
     if report.trial.success {
