@@ -2,7 +2,6 @@
 
 mod bench;
 mod bench_ipc;
-mod config_dir;
 mod experiment;
 mod kin;
 mod plots;
@@ -77,15 +76,9 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
-        Ok(cli) => cli,
-        Err(e) => {
-            let code = if e.use_stderr() { EXIT_BAD_INPUT } else { 0 };
-            let _ = e.print();
-            return ExitCode::from(code);
-        }
-    };
-    let config_dir = config_dir::resolve(cli.config_dir);
+    // clap prints usage errors and exits with code 2 (bad input), help with 0.
+    let cli = Cli::parse();
+    let config_dir = motm_core::resolve_config_dir(cli.config_dir.as_deref());
     let result = match cli.command {
         Command::Kin(args) => kin::run(&config_dir, &args).map_err(CliError::BadInput),
         Command::Bench(args) => bench::run(&config_dir, &args).map_err(CliError::BadInput),

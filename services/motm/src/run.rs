@@ -329,7 +329,7 @@ pub fn run_stack(
     let bad = |e: String| CliError::BadInput(e);
     let stack_path = StackConfig::resolve(config_dir, &args.config);
     let stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
-    let scenario_path = motm_supervisor::scenario_path(
+    let scenario_path = motm_sim::scenario_path(
         config_dir,
         args.scenario.as_deref().unwrap_or(&stack.scenario),
     );

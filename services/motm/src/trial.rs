@@ -4,9 +4,9 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use motm_core::Robot;
-use motm_sim::Scenario;
 use motm_sim::experiment::{Method, TrialResult, TrialSpec, TrialTrace};
 use motm_sim::runner::{RunnerConfig, run_trial};
+use motm_sim::{Scenario, scenario_path};
 
 use crate::CliError;
 
@@ -32,16 +32,6 @@ pub struct TrialArgs {
     /// base command) to this CSV file.
     #[arg(long)]
     pub trace_csv: Option<PathBuf>,
-}
-
-/// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
-pub fn scenario_path(config_dir: &Path, name: &str) -> PathBuf {
-    let direct = PathBuf::from(name);
-    if direct.is_file() {
-        direct
-    } else {
-        config_dir.join("scenarios").join(format!("{name}.toml"))
-    }
 }
 
 /// Loads a scenario and its robot, with the base speed overridden when given.

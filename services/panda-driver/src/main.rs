@@ -114,14 +114,8 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
 }
 
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
-        Ok(cli) => cli,
-        Err(e) => {
-            let code = if e.use_stderr() { EXIT_BAD_INPUT } else { 0 };
-            let _ = e.print();
-            return ExitCode::from(code);
-        }
-    };
+    // clap prints usage errors and exits with code 2 (bad input), help with 0.
+    let cli = Cli::parse();
     motm_driver::exit("panda-driver", run(cli))
 }
 

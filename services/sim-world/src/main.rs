@@ -25,7 +25,8 @@ use motm_msgs::{
 };
 use motm_sim::Scenario;
 use motm_sim::runner::RunnerConfig;
-use motm_sim::sim_world::{HardwareInput, SimWorld, SimWorldConfig, scenario_path};
+use motm_sim::scenario_path;
+use motm_sim::sim_world::{HardwareInput, SimWorld, SimWorldConfig};
 use motm_wire::setup::resolve_config_dir;
 
 /// Exit code for bad input (flags, scenario, robot model).
@@ -221,14 +222,8 @@ fn serve(cli: &Cli, mut sim: SimWorld) -> Result<(), BusError> {
 }
 
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
-        Ok(cli) => cli,
-        Err(e) => {
-            let code = if e.use_stderr() { EXIT_BAD_INPUT } else { 0 };
-            let _ = e.print();
-            return ExitCode::from(code);
-        }
-    };
+    // clap prints usage errors and exits with code 2 (bad input), help with 0.
+    let cli = Cli::parse();
     let sim = match setup(&cli) {
         Ok(sim) => sim,
         Err(e) => {

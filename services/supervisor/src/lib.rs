@@ -4,10 +4,9 @@
 //! `motm run` both use it.
 
 pub mod binaries;
-pub mod paths;
 pub mod process_table;
 pub mod stack;
 
-pub use paths::{config_dir, scenario_path};
+pub use motm_sim::scenario_path;
 pub use process_table::{LaunchSpec, ProcessTable, TableEvent};
 pub use stack::{LaunchContext, ProcessConfig, StackConfig};

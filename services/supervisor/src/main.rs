@@ -64,7 +64,7 @@ struct Setup {
 }
 
 fn setup(args: &Args) -> Result<Setup, String> {
-    let config_dir = motm_supervisor::config_dir(args.config_dir.clone());
+    let config_dir = motm_core::resolve_config_dir(args.config_dir.as_deref());
     let stack = StackConfig::from_file(&StackConfig::resolve(&config_dir, &args.stack))
         .map_err(|e| e.to_string())?;
     let control_rate_hz = args.rate.unwrap_or(stack.control_rate_hz);
@@ -73,7 +73,7 @@ fn setup(args: &Args) -> Result<Setup, String> {
             "--rate must be a finite number > 0, got {control_rate_hz}"
         ));
     }
-    let scenario = motm_supervisor::scenario_path(
+    let scenario = motm_sim::scenario_path(
         &config_dir,
         args.scenario.as_deref().unwrap_or(&stack.scenario),
     );

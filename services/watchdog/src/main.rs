@@ -47,7 +47,7 @@ struct Watched {
 }
 
 fn watched(args: &Args) -> Result<Watched, String> {
-    let dir = motm_supervisor::config_dir(args.config_dir.clone());
+    let dir = motm_core::resolve_config_dir(args.config_dir.as_deref());
     let stack = StackConfig::from_file(&StackConfig::resolve(&dir, &args.stack))
         .map_err(|e| e.to_string())?;
     for (flag, rate) in [

@@ -6,6 +6,7 @@
 //! - [`base_controller`]: closest-approach geometry and the constant-speed polar base controller.
 //! - [`camera`]: the palm camera's equidistant fisheye model, configuration and calibration.
 //! - [`chain`]: serial chains loaded from URDF.
+//! - [`config_dir`]: where the `config/` folder is.
 //! - [`command_limiter`]: the drivers' velocity, acceleration and jerk limiter with stale-command and safe-stop ramps.
 //! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
 //! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
@@ -32,6 +33,7 @@ pub mod base_controller;
 pub mod camera;
 pub mod chain;
 pub mod command_limiter;
+pub mod config_dir;
 pub mod error;
 pub mod final_phase;
 pub mod holistic;
@@ -57,6 +59,7 @@ pub mod velocity_driver;
 pub mod watchdog;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
+pub use config_dir::resolve_config_dir;
 pub use error::ModelError;
 pub use holistic::{HolisticConfig, HolisticController, HolisticInput, HolisticOutput};
 pub use kinematics::{

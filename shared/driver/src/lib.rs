@@ -28,7 +28,7 @@ use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig, LimiterMode};
 use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverConfig};
 use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
 use motm_sim::Scenario;
-use motm_sim::sim_world::scenario_path;
+use motm_sim::scenario_path;
 use motm_wire::setup::resolve_config_dir;
 
 /// Robot used when neither `--robot` nor `--scenario` names one.

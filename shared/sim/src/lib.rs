@@ -19,5 +19,5 @@ pub mod sim_world;
 pub mod trial_camera;
 pub mod world;
 
-pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject};
+pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject, scenario_path};
 pub use world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World, WorldConfig};

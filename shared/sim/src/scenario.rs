@@ -132,6 +132,17 @@ impl Noise {
     }
 }
 
+/// A scenario file: `name` itself when it is an existing file, else
+/// `<config_dir>/scenarios/<name>.toml`.
+pub fn scenario_path(config_dir: &Path, name: &str) -> PathBuf {
+    let direct = PathBuf::from(name);
+    if direct.is_file() {
+        direct
+    } else {
+        config_dir.join("scenarios").join(format!("{name}.toml"))
+    }
+}
+
 /// A scenario: robot, start, speed, objects, buttons and noise.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]

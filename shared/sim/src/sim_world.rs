@@ -19,16 +19,6 @@ use crate::runner::{RunnerConfig, SceneBuilder};
 use crate::scenario::Scenario;
 use crate::world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World};
 
-/// Finds a scenario: a path as given, else `<config_dir>/scenarios/<name>.toml`.
-pub fn scenario_path(config_dir: &std::path::Path, name: &str) -> std::path::PathBuf {
-    let direct = std::path::PathBuf::from(name);
-    if direct.is_file() {
-        direct
-    } else {
-        config_dir.join("scenarios").join(format!("{name}.toml"))
-    }
-}
-
 /// Settings of [`SimWorld`] beyond the [`RunnerConfig`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]

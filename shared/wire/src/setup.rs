@@ -1,7 +1,7 @@
 //! The command line every control service takes, and loading the robot, scenario and
 //! controller settings it names.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use motm_core::Robot;
@@ -51,21 +51,7 @@ pub struct ServiceSetup {
     pub rate_hz: f64,
 }
 
-/// The config folder: the flag, then `$MOTM_CONFIG_DIR`, then `./config`, then the source
-/// tree's `config/` (the `motm` CLI's order).
-pub fn resolve_config_dir(flag: Option<&Path>) -> PathBuf {
-    if let Some(dir) = flag {
-        return dir.to_path_buf();
-    }
-    if let Some(dir) = std::env::var_os("MOTM_CONFIG_DIR") {
-        return PathBuf::from(dir);
-    }
-    let local = Path::new("config");
-    if local.join("robots").is_dir() {
-        return local.to_path_buf();
-    }
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
-}
+pub use motm_core::resolve_config_dir;
 
 impl ServiceSetup {
     /// Loads what `args` name; the error names the file or flag at fault.
