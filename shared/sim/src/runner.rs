@@ -25,9 +25,10 @@ use motm_core::{GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress}
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use crate::experiment::{Method, TrialResult, TrialTrace};
-use crate::metrics::{AccelerationFilterConfig, AccelerationMeter};
+use crate::metrics::AccelerationFilterConfig;
 use crate::render::{CONTAINER_BLUE, PLATFORM_WOOD, PalmCamera, Scene, SceneBox};
 use crate::scenario::Scenario;
+use crate::sim_world::{HardwareInput, SimWorld, SimWorldConfig, TrialStatus};
 use crate::world::{HardwareCommand, Outcome, World};
 
 /// Settings of the runner and of every method it can run.
@@ -230,10 +231,11 @@ pub fn run_trial(
 ) -> Result<(TrialResult, Option<TrialTrace>), String> {
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
-    let mut world = World::new(robot, scenario, seed);
-    let mut camera = PalmCamera::for_trial(&config.camera, scenario, seed);
-    let scenes = SceneBuilder::new(&world);
-    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, &camera);
+    // The same world, camera, metrics and verdict as the sim-world process; the command is always
+    // fresh here (age 0), so its hardware brakes never engage.
+    let mut sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
+        .map_err(|e| e.to_string())?;
+    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, sim.camera());
     let start = scenario.start();
     let mut motm_config = config.motm.clone();
     motm_config.base.forward_speed = scenario.base_speed;
@@ -297,11 +299,9 @@ pub fn run_trial(
 
     let control_dt = 1.0 / config.control_rate_hz;
     let physics_per_control = (control_dt / config.physics_step).round().max(1.0) as usize;
-    let physics_dt = control_dt / physics_per_control as f64;
-    let timeout = config.timeout_base + config.timeout_per_task * tasks.len() as f64;
-    let mut meter = AccelerationMeter::new(&config.acceleration, control_dt);
     let mut trace = record_trace.then(|| TrialTrace {
-        containers: world
+        containers: sim
+            .world()
             .layout()
             .containers
             .iter()
@@ -310,17 +310,10 @@ pub fn run_trial(
         objects: vec![Vec::new(); scenario.objects.len()],
         ..TrialTrace::default()
     });
-    let no_scene = Scene::default();
     let mut cycle = 0usize;
-    let outcome = loop {
-        let sensors = world.sensors().clone();
+    while sim.status() == TrialStatus::Running {
+        let sensors = sim.sensors().clone();
         let t = sensors.time;
-        if let Some(outcome) = world.outcome() {
-            break Some(outcome);
-        }
-        if t >= timeout {
-            break None;
-        }
         // The tool pose the robot believes it has (odometry + joints), for perception.
         let believed_tool = robot.tool_pose(&sensors.base_pose, &sensors.arm_q);
         tracker.record_tool(t, believed_tool);
@@ -329,7 +322,7 @@ pub fn run_trial(
             Controller::Reactive(c) => c.task_index(),
             Controller::Planning(..) => 0,
         };
-        tracker.select(task_index.min(tasks.len().saturating_sub(1)), &camera);
+        tracker.select(task_index.min(tasks.len().saturating_sub(1)), sim.camera());
         let target = tracker.target();
         let command = match &mut controller {
             Controller::Motm(c) => {
@@ -390,22 +383,17 @@ pub fn run_trial(
                 }
             }
         };
+        let input = HardwareInput {
+            arm: Some((&command.arm_qd, 0.0)),
+            base: Some((command.base, 0.0)),
+            gripper: Some(command.gripper),
+        };
         for _ in 0..physics_per_control {
-            world.step(physics_dt, &command);
-            let now = world.truth().time;
-            let tool = world.truth().tool_pose;
-            // The scene is only built when a frame is captured.
-            let frame = if camera.next_capture() <= now {
-                camera.step(&scenes.scene(&world), &tool, now)
-            } else {
-                camera.step(&no_scene, &tool, now)
-            };
-            if let Some(frame) = frame {
+            if let Some(frame) = sim.step(&input) {
                 tracker.observe(&frame.image, frame.width, frame.height, frame.stamp);
             }
         }
-        let truth = world.truth();
-        meter.push(truth.tool_pose.translation.vector);
+        let truth = sim.truth();
         if let Some(trace) = trace.as_mut().filter(|_| config.record_cycles) {
             let tool = truth.tool_pose.translation.vector;
             let cube = truth
@@ -450,14 +438,15 @@ pub fn run_trial(
             }
         }
         cycle += 1;
-    };
-    let truth = world.truth();
+    }
+    let status = sim.status();
+    let (success, failure) = (
+        status == TrialStatus::Decided(Outcome::Success),
+        status.failure().map(str::to_string),
+    );
+    let meter = sim.meter();
+    let truth = sim.truth();
     let sim_time = truth.time;
-    let (success, failure) = match outcome {
-        Some(Outcome::Success) => (true, None),
-        Some(failed) => (false, failed.failure().map(str::to_string)),
-        None => (false, Some("timeout".to_string())),
-    };
     let mut placed: Vec<f64> = truth.objects.iter().filter_map(|o| o.placed_time).collect();
     placed.sort_by(f64::total_cmp);
     let round_trips_s = placed
