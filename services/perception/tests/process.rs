@@ -4,12 +4,12 @@
 //! published for a place, and that the process exits cleanly leaving no shared memory behind.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use motm_bus::{
-    Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Stamp, Subscriber, monotonic_now_ns,
-    remove_domain, shared_memory_entries,
+    Bus, IpcConfig, Latest, OwnedProcess, PREFIX_ENV, Publisher, Qos, Stamp, Subscriber,
+    monotonic_now_ns, remove_domain, shared_memory_entries,
 };
 use motm_core::Robot;
 use motm_core::camera::CameraConfig;
@@ -30,38 +30,15 @@ fn config_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
 }
 
-/// The service process, killed and reaped on drop if the test fails early.
-struct Service {
-    child: Child,
-}
-
-impl Service {
-    fn spawn(ipc: &IpcConfig) -> Self {
-        let child = Command::new(env!("CARGO_BIN_EXE_perception"))
+/// Starts the service on `ipc`'s prefix (killed and reaped on drop if the test fails early).
+fn spawn_service(ipc: &IpcConfig) -> OwnedProcess {
+    OwnedProcess::spawn(
+        Command::new(env!("CARGO_BIN_EXE_perception"))
             .arg("--config-dir")
             .arg(config_dir())
-            .env(PREFIX_ENV, &ipc.prefix)
-            .spawn()
-            .expect("perception starts");
-        Self { child }
-    }
-
-    /// Sends SIGTERM and waits for the exit.
-    fn terminate(mut self) -> ExitStatus {
-        // SAFETY: plain kill(2) on our own child, which has not been reaped yet.
-        let rc = unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-        assert_eq!(rc, 0);
-        self.child.wait().unwrap()
-    }
-}
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
+            .env(PREFIX_ENV, &ipc.prefix),
+    )
+    .expect("perception starts")
 }
 
 fn mission(kind: TaskKindCode, task_index: u32, target: Vector3<f64>) -> MissionState {
@@ -113,7 +90,7 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
             Subscriber::<TargetEstimate>::new(&bus, services::PERCEPTION_TARGET, &qos).unwrap();
         let mut heartbeat =
             Latest::<Heartbeat>::new(&bus, &services::heartbeat("perception"), &qos).unwrap();
-        let service = Service::spawn(&ipc);
+        let service = spawn_service(&ipc);
 
         // The mission's position is 10 cm off: perception must find the cube itself.
         let hint = cube + Vector3::new(0.1, 0.0, 0.0);
@@ -187,7 +164,7 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
             "estimates during a place: {during_place:?}"
         );
 
-        let status = service.terminate();
+        let status = service.terminate().unwrap();
         assert!(status.success(), "perception exited with {status}");
     }
     // SAFETY: the test's bus is dropped and the service is reaped.

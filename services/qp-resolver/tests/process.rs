@@ -4,11 +4,11 @@
 //! the process exits cleanly on SIGTERM leaving nothing in shared memory.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use motm_bus::{
-    Bus, IpcConfig, Latest, PREFIX_ENV, Publisher, Qos, Subscriber, remove_domain,
+    Bus, IpcConfig, Latest, OwnedProcess, PREFIX_ENV, Publisher, Qos, Subscriber, remove_domain,
     shared_memory_entries,
 };
 use motm_core::Robot;
@@ -28,39 +28,16 @@ fn config_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
 }
 
-/// The service process, killed and reaped on drop if the test fails early.
-struct Service {
-    child: Child,
-}
-
-impl Service {
-    fn spawn(ipc: &IpcConfig) -> Self {
-        let child = Command::new(env!("CARGO_BIN_EXE_qp-resolver"))
+/// Starts the service on `ipc`'s prefix (killed and reaped on drop if the test fails early).
+fn spawn_service(ipc: &IpcConfig) -> OwnedProcess {
+    OwnedProcess::spawn(
+        Command::new(env!("CARGO_BIN_EXE_qp-resolver"))
             .arg("--config-dir")
             .arg(config_dir())
             .args(["--rate", "200"])
-            .env(PREFIX_ENV, &ipc.prefix)
-            .spawn()
-            .expect("qp-resolver starts");
-        Self { child }
-    }
-
-    /// Sends SIGTERM and waits for the exit.
-    fn terminate(mut self) -> ExitStatus {
-        // SAFETY: plain kill(2) on our own child, which has not been reaped yet.
-        let rc = unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-        assert_eq!(rc, 0);
-        self.child.wait().unwrap()
-    }
-}
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
+            .env(PREFIX_ENV, &ipc.prefix),
+    )
+    .expect("qp-resolver starts")
 }
 
 /// The inputs the test feeds the service.
@@ -188,7 +165,7 @@ fn qp_resolver_process_turns_a_twist_into_limited_commands_and_drops_nan_input()
         let bus = Bus::open_with("qp-resolver-test", &ipc).unwrap();
         let mut feeder = Feeder::new(&bus);
         let mut commands = Commands::new(&bus);
-        let service = Service::spawn(&ipc);
+        let service = spawn_service(&ipc);
 
         // A resolved command: moving, finite, within every velocity limit, from a solved QP.
         let mut resolved = 0;
@@ -258,7 +235,7 @@ fn qp_resolver_process_turns_a_twist_into_limited_commands_and_drops_nan_input()
             |c, _| c.arm.iter().all(|v| *v == 0.0) && c.base == (0.0, 0.0),
         );
 
-        let status = service.terminate();
+        let status = service.terminate().unwrap();
         assert!(status.success(), "qp-resolver exited with {status}");
     }
     // SAFETY: the test's bus is dropped and the service is reaped.

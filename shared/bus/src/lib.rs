@@ -35,6 +35,7 @@ mod cleanup;
 mod clock;
 mod heartbeat;
 mod ports;
+mod process;
 mod service_loop;
 mod stats;
 
@@ -42,6 +43,7 @@ pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memor
 pub use clock::monotonic_now_ns;
 pub use heartbeat::HeartbeatPublisher;
 pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};
+pub use process::OwnedProcess;
 pub use service_loop::{CycleContext, Flow, LoopConfig, LoopExit, ServiceLoop};
 pub use stats::{CycleStats, percentile};
 
