@@ -34,6 +34,7 @@
 mod cleanup;
 mod clock;
 mod heartbeat;
+pub mod inject;
 mod ports;
 mod process;
 mod service_loop;

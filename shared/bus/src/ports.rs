@@ -217,6 +217,18 @@ impl<M: Message> Publisher<M> {
         self.send(sample)
     }
 
+    /// Publishes `message` exactly as given, header included (stamp, sequence number and
+    /// schema version are not touched, and the publisher's own sequence does not advance): for
+    /// fault-injection tests that send malformed samples. Never use it for real data.
+    pub fn publish_raw(&mut self, message: M) -> Result<(), BusError> {
+        let sample = self
+            .ports
+            .publisher
+            .loan_uninit()
+            .map_err(|e| port_error(&self.service, e))?;
+        self.send(sample.write_payload(message))
+    }
+
     /// Publishes a sample built in place in shared memory: the payload starts all-zero,
     /// `fill` writes it, then the header is stamped. Use this for large payloads (camera
     /// images), which should never be built on the stack.
