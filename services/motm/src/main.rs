@@ -3,6 +3,7 @@
 mod bench;
 mod bench_ipc;
 mod experiment;
+mod faults;
 mod kin;
 mod plots;
 mod report;

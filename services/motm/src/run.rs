@@ -23,6 +23,7 @@ use motm_supervisor::{StackConfig, binaries};
 use serde::Serialize;
 
 use crate::CliError;
+use crate::faults::{DriverTotals, FaultRecord, FaultRunner, SafeStopReport, check_targets};
 
 /// Arguments of `motm run`.
 #[derive(Args, Debug)]
@@ -48,6 +49,11 @@ pub struct RunArgs {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Inject a fault (repeatable): `kill:SERVICE@SECONDS`, `stop:SERVICE@SECONDS+DURATION`
+    /// (SIGSTOP, then SIGCONT after DURATION) or `nan:TOPIC@SECONDS` (one NaN sample);
+    /// SECONDS of simulated time.
+    #[arg(long = "fault", value_name = "FAULT")]
+    pub faults: Vec<String>,
 }
 
 /// One process's figures, from its last heartbeat and the supervisor's table.
@@ -93,6 +99,10 @@ pub struct RunReport {
     pub ipc_prefix: String,
     /// Files of the prefix left in /dev/shm or iceoryx2's folder after the run (must be 0).
     pub stale_shm_entries: usize,
+    /// The watchdog's safe-stops after the stack came up.
+    pub safe_stops: SafeStopReport,
+    /// The `--fault` faults and what followed each.
+    pub faults_injected: Vec<FaultRecord>,
 }
 
 /// Latest samples of everything `motm run` watches.
@@ -108,6 +118,8 @@ struct Watch {
     qp_status: Option<Subscriber<QpStatus>>,
     /// Camera-exposure-to-joint-command latencies seen so far, µs.
     latencies_us: Vec<f64>,
+    /// The drivers' counters over all their instances.
+    drivers: DriverTotals,
 }
 
 impl Watch {
@@ -120,6 +132,7 @@ impl Watch {
                 None
             },
             latencies_us: Vec::new(),
+            drivers: DriverTotals::default(),
             truth: Latest::new(bus, services::SIM_TRUTH, &qos)?,
             status: Latest::new(bus, services::SUPERVISOR_STATUS, &qos)?,
             arm_driver: Latest::new(bus, services::ARM_DRIVER_STATUS, &qos)?,
@@ -148,6 +161,10 @@ impl Watch {
         let _ = self.status.update();
         let _ = self.arm_driver.update();
         let _ = self.base_driver.update();
+        self.drivers
+            .update(services::ARM_DRIVER_STATUS, &self.arm_driver);
+        self.drivers
+            .update(services::BASE_DRIVER_STATUS, &self.base_driver);
         for ((_, beat), last) in self.heartbeats.iter_mut().zip(&mut self.last_beats) {
             let _ = beat.update();
             if let Some(b) = beat.get() {
@@ -353,6 +370,10 @@ pub fn run_stack(
             "--timeout must be a finite number > 0, got {timeout_s}"
         )));
     }
+    let faults = motm_core::fault_schedule::parse_schedule(&args.faults)
+        .map_err(|e| bad(e.to_string()))?;
+    let process_names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
+    check_targets(&faults, &process_names).map_err(bad)?;
     let bin_dir = ensure_binaries(&stack)?;
 
     let ipc = IpcConfig {
@@ -410,11 +431,30 @@ pub fn run_stack(
     let watched = (|| -> Result<_, motm_bus::BusError> {
         let bus = Bus::open_with("motm-run", &ipc)?;
         let mut watch = Watch::new(&bus, &names, measure_latency)?;
+        let mut fault_runner = FaultRunner::new(&bus, &faults)?;
         let mut failure = None;
-        let watch_rate = if measure_latency { 4.0 * rate } else { 20.0 };
+        // Faults are timed and measured to a few ms: the watch loop then runs at 500 Hz.
+        let watch_rate = if measure_latency {
+            4.0 * rate
+        } else if fault_runner.has_faults() {
+            500.0
+        } else {
+            20.0
+        };
         let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(watch_rate))?;
-        let exit = service.run_periodic(|_| {
+        let exit = service.run_periodic(|cycle| {
             watch.update();
+            let beats: Vec<(String, Option<Heartbeat>)> = watch
+                .heartbeats
+                .iter()
+                .map(|(name, beat)| (name.clone(), beat.get().copied()))
+                .collect();
+            fault_runner.step(
+                cycle.now_ns,
+                watch.truth.get().map(|t| t.sim_time),
+                watch.status.get(),
+                &beats,
+            );
             if watch
                 .truth
                 .get()
@@ -436,14 +476,14 @@ pub fn run_stack(
         if exit != motm_bus::LoopExit::Stopped {
             failure = Some("interrupted".into());
         }
+        let (records, safe_stops) = fault_runner.finish();
         Ok((
             trial_result(watch.truth.get(), failure, wall.elapsed().as_secs_f64()),
             std::mem::take(&mut watch.latencies_us),
             watch.processes(),
-            [
-                watch.arm_driver.get().copied(),
-                watch.base_driver.get().copied(),
-            ],
+            std::mem::take(&mut watch.drivers),
+            records,
+            safe_stops,
         ))
     })();
     let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
@@ -454,26 +494,24 @@ pub fn run_stack(
     let _ = unsafe { motm_bus::remove_domain(&ipc) };
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
-    let (trial, latencies, processes, drivers) =
+    let (trial, latencies, processes, drivers, faults_injected, safe_stops) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }
-    let drivers: Vec<DriverStatus> = drivers.into_iter().flatten().collect();
     let report = RunReport {
         trial,
         scenario: scenario.name.clone(),
         base_speed: scenario.base_speed,
         control_rate_hz: rate,
         processes,
-        limit_violations: drivers.iter().map(|d| d.limit_violations).sum(),
-        output_violations: drivers.iter().map(|d| d.output_violations).sum(),
-        max_command_gap_ms: drivers
-            .iter()
-            .map(|d| d.max_command_gap_ns as f64 / 1e6)
-            .fold(0.0, f64::max),
+        limit_violations: drivers.limit_violations(),
+        output_violations: drivers.output_violations(),
+        max_command_gap_ms: drivers.max_command_gap_ms(),
         ipc_prefix: ipc.prefix.clone(),
         stale_shm_entries: stale,
+        safe_stops,
+        faults_injected,
     };
     Ok((report, latencies))
 }

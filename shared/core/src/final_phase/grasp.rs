@@ -16,6 +16,12 @@
 //!    keeps moving with the latched velocity) until the sequencer hands the arm on.
 //!
 //! Grasp success is decided by the world (the simulator's grasp model), never here.
+//!
+//! **Resuming after a restart.** A new task always starts with the hand open (the resting
+//! gripper command of a pick is open). So a controller that finds the fingers closed to
+//! `closed_opening` on its first cycle belongs to a final-phase process restarted after the
+//! closure (the state on the bus, the measured opening, says so): it resumes by lifting from
+//! the grasp point instead of opening the hand to approach again, which would drop the object.
 
 use nalgebra::Vector3;
 
@@ -34,6 +40,8 @@ pub struct GraspController {
     clock: StageClock,
     /// Grasp point and time at the end of closure, and the object's horizontal velocity then.
     lift_from: Option<LiftOrigin>,
+    /// Whether a cycle has run (the first one checks for a closed hand, see the module doc).
+    started: bool,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -61,6 +69,7 @@ impl GraspController {
             stage: FinalPhaseStage::Approach,
             clock: StageClock::default(),
             lift_from: None,
+            started: false,
         }
     }
 
@@ -85,10 +94,29 @@ impl GraspController {
         self.clock.restart(t);
     }
 
+    /// Ends closure at `grasp_point`: latches the lift origin and starts lifting.
+    fn start_lifting(&mut self, input: &FinalPhaseInput, grasp_point: Vector3<f64>) {
+        let mut velocity = input.target.velocity;
+        velocity.z = 0.0;
+        self.lift_from = Some(LiftOrigin {
+            point: grasp_point,
+            t: input.t,
+            velocity,
+        });
+        self.enter(FinalPhaseStage::Lifting, input.t);
+    }
+
     /// Moves through the stages this cycle's input allows.
     fn advance(&mut self, input: &FinalPhaseInput) {
         let tool = input.tool_pose.translation.vector;
         let grasp_point = self.grasp_point(input);
+        let first_cycle = !std::mem::replace(&mut self.started, true);
+        if first_cycle
+            && self.stage == FinalPhaseStage::Approach
+            && input.gripper_opening <= self.config.closed_opening
+        {
+            self.start_lifting(input, grasp_point);
+        }
         if self.stage == FinalPhaseStage::Approach
             && (grasp_point - tool).norm() < self.config.close_distance
             && top_down_angle(&input.tool_pose.rotation) < self.config.close_max_tilt
@@ -99,14 +127,7 @@ impl GraspController {
             let closed = input.gripper_opening <= self.config.closed_opening;
             let timed_out = self.clock.elapsed(input.t) >= self.config.closing_timeout;
             if closed || timed_out {
-                let mut velocity = input.target.velocity;
-                velocity.z = 0.0;
-                self.lift_from = Some(LiftOrigin {
-                    point: grasp_point,
-                    t: input.t,
-                    velocity,
-                });
-                self.enter(FinalPhaseStage::Lifting, input.t);
+                self.start_lifting(input, grasp_point);
             }
         }
         if self.stage == FinalPhaseStage::Lifting
@@ -407,6 +428,27 @@ mod tests {
             assert_eq!(out.progress, TaskProgress::Active);
         }
         assert!(!controller.step(&good).input_rejected);
+    }
+
+    #[test]
+    fn a_restarted_controller_finding_the_hand_closed_lifts_instead_of_opening() {
+        let config = super::super::FinalPhaseConfig::default();
+        let tool = Isometry3::new(CUBE + Vector3::new(0.0, 0.0, 0.03), Vector3::x() * PI);
+        let mut input = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT).input();
+        // Fingers closed on the cube: the process restarted after the closure.
+        input.gripper_opening = CUBE_WIDTH;
+        assert!(input.gripper_opening <= config.grasp.closed_opening);
+        let mut restarted = GraspController::new(config.servo, config.grasp);
+        let out = restarted.step(&input);
+        assert_eq!(out.stage, FinalPhaseStage::Lifting);
+        assert_eq!(out.gripper, GripperCommand::Close, "the cube is not dropped");
+        assert!(out.twist[2] > 0.0, "it lifts: {}", out.twist);
+        // A hand found open starts the approach as usual, and only the first cycle decides.
+        input.gripper_opening = 0.08;
+        let mut fresh = GraspController::new(config.servo, config.grasp);
+        assert_eq!(fresh.step(&input).gripper, GripperCommand::Open);
+        input.gripper_opening = CUBE_WIDTH;
+        assert_eq!(fresh.step(&input).stage, FinalPhaseStage::Approach);
     }
 
     #[test]

@@ -1,0 +1,397 @@
+//! `motm run --fault`: carries out the fault schedule ([`motm_core::fault_schedule`]) on the
+//! running stack and measures what follows: the supervisor's restart of a killed process, the
+//! watchdog's safe-stop after a hang and its release, the drop of a NaN sample. Also counts the
+//! watchdog's safe-stops, and adds the drivers' counters over every instance of a driver (a
+//! restarted driver starts counting from zero).
+//!
+//! Times are measured on the monotonic clock that stamps every message, so a safe-stop latency
+//! is the stamp of the watchdog's first raised sample minus the moment of the fault. The
+//! safe-stop stream comes at the watchdog's rate and its subscriber queue holds a few samples:
+//! should the run's loop fall behind by more than that, the first raised sample seen is a
+//! later one, and the latency is over-, never under-estimated.
+
+use std::collections::HashMap;
+
+use motm_bus::inject::{INJECTABLE_TOPICS, Injector, Malformation, full_topic_name, open_injector};
+use motm_bus::{Bus, BusError, Latest, Qos, Subscriber};
+use motm_core::fault_schedule::{Fault, FaultKind};
+use motm_msgs::{
+    DriverStatus, Heartbeat, SafeStop, SafeStopReason, SupervisedState, SupervisorStatus,
+    services,
+};
+use serde::Serialize;
+
+/// What happened to one injected fault.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct FaultRecord {
+    /// `kill`, `stop` or `nan`.
+    pub kind: String,
+    /// The service or topic hit.
+    pub target: String,
+    /// Scheduled time, simulated s.
+    pub at_s: f64,
+    /// Simulated time when the fault was injected (`None`: it never was).
+    pub injected_at_s: Option<f64>,
+    /// Pid signalled (kill, stop).
+    pub pid: Option<u32>,
+    /// `restarted`, `resumed`, `published`, `not_restarted`, `no_process`, ...
+    pub outcome: String,
+    /// Kill: from the kill to the supervisor reporting the new instance, ms.
+    pub restart_ms: Option<f64>,
+    /// Kill: from the kill to the first heartbeat of the new instance, ms.
+    pub first_heartbeat_ms: Option<f64>,
+    /// From the fault to the watchdog's first safe-stop sample after it, ms.
+    pub safe_stop_ms: Option<f64>,
+    /// Stop: from SIGCONT to safe-stop released, ms.
+    pub resumed_ms: Option<f64>,
+}
+
+/// The watchdog's safe-stops over the run.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct SafeStopReport {
+    /// Times safe-stop was raised after the stack first came up (the start-up hold, until
+    /// every control-path process is heard from, is not counted).
+    pub count: u32,
+    /// Reason of each raise, in order.
+    pub reasons: Vec<String>,
+    /// Largest safe-stop latency over the hang (stop) faults, ms (`None`: none measured).
+    pub latency_ms: Option<f64>,
+}
+
+/// The fault checks that `motm run` makes before starting: every kill and stop names a
+/// process of the stack (not the supervisor, which the run needs), every NaN an injectable
+/// topic. The error names the flag.
+pub fn check_targets(faults: &[Fault], processes: &[String]) -> Result<(), String> {
+    for fault in faults {
+        match fault.kind {
+            FaultKind::Kill | FaultKind::Stop => {
+                if !processes.iter().any(|p| *p == fault.target) {
+                    return Err(format!(
+                        "--fault {}:{}: no process {:?} in the stack (processes: {})",
+                        fault.kind.name(),
+                        fault.target,
+                        fault.target,
+                        processes.join(", ")
+                    ));
+                }
+            }
+            FaultKind::Nan => {
+                let topic = full_topic_name(&fault.target);
+                if !INJECTABLE_TOPICS.contains(&topic.as_str()) {
+                    return Err(format!(
+                        "--fault nan:{}: cannot publish a NaN sample on {topic:?} (topics: {})",
+                        fault.target,
+                        INJECTABLE_TOPICS.join(", ")
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A fault under way or done.
+struct Tracked {
+    fault: Fault,
+    record: FaultRecord,
+    /// Monotonic time of the injection, ns.
+    injected_ns: Option<u64>,
+    /// Stop: monotonic time of the SIGCONT, ns.
+    continued_ns: Option<u64>,
+    /// Stop: wall time when SIGCONT is due, ns.
+    continue_at_ns: Option<u64>,
+}
+
+/// Driver counters added over every instance (publisher) of each driver.
+#[derive(Debug, Default)]
+pub struct DriverTotals {
+    /// Latest status per (driver topic, publisher id).
+    latest: HashMap<(&'static str, u128), DriverStatus>,
+}
+
+impl DriverTotals {
+    /// Takes in the newest status of the driver on `topic`.
+    pub fn update(&mut self, topic: &'static str, status: &Latest<DriverStatus>) {
+        if let (Some(s), Some(id)) = (status.get(), status.publisher_id()) {
+            self.latest.insert((topic, id), *s);
+        }
+    }
+
+    /// Commands beyond a limit, all instances.
+    pub fn limit_violations(&self) -> u64 {
+        self.latest.values().map(|d| d.limit_violations).sum()
+    }
+
+    /// Outputs beyond a limit, all instances.
+    pub fn output_violations(&self) -> u64 {
+        self.latest.values().map(|d| d.output_violations).sum()
+    }
+
+    /// Longest command gap at any instance, ms.
+    pub fn max_command_gap_ms(&self) -> f64 {
+        self.latest
+            .values()
+            .map(|d| d.max_command_gap_ns as f64 / 1e6)
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Carries out a fault schedule and watches the safe-stop stream.
+pub struct FaultRunner {
+    tracked: Vec<Tracked>,
+    injectors: Vec<Box<dyn Injector>>,
+    safe_stop: Subscriber<SafeStop>,
+    /// Whether the watchdog has cleared safe-stop once (the stack is up).
+    stack_up: bool,
+    active: bool,
+    /// Monotonic stamps of every raise after the stack came up, ns.
+    raises_ns: Vec<u64>,
+    /// Monotonic stamps of every release after the stack came up, ns.
+    releases_ns: Vec<u64>,
+    report: SafeStopReport,
+    /// Largest simulated time seen (sim-world's clock; kept when sim-world restarts).
+    sim_time: f64,
+}
+
+/// Sends `sig` to `pid`.
+fn signal(pid: u32, sig: libc::c_int) -> bool {
+    // SAFETY: kill(2) has no memory-safety preconditions.
+    unsafe { libc::kill(pid as libc::pid_t, sig) == 0 }
+}
+
+/// Milliseconds from `from` to `to` (monotonic ns).
+fn ms(from: u64, to: u64) -> f64 {
+    to.saturating_sub(from) as f64 / 1e6
+}
+
+impl FaultRunner {
+    /// A runner of `faults` (already checked) on `bus`; opens the injectors now, so the
+    /// receivers are connected before the first NaN sample.
+    pub fn new(bus: &Bus, faults: &[Fault]) -> Result<Self, BusError> {
+        let mut injectors: Vec<Box<dyn Injector>> = Vec::new();
+        for fault in faults.iter().filter(|f| f.kind == FaultKind::Nan) {
+            let topic = full_topic_name(&fault.target);
+            if injectors.iter().all(|i| i.topic() != topic)
+                && let Some(injector) = open_injector(bus, &topic)?
+            {
+                injectors.push(injector);
+            }
+        }
+        Ok(Self {
+            tracked: faults
+                .iter()
+                .map(|f| Tracked {
+                    fault: f.clone(),
+                    record: FaultRecord {
+                        kind: f.kind.name().into(),
+                        target: f.target.clone(),
+                        at_s: f.at_s,
+                        outcome: "not_injected".into(),
+                        ..FaultRecord::default()
+                    },
+                    injected_ns: None,
+                    continued_ns: None,
+                    continue_at_ns: None,
+                })
+                .collect(),
+            injectors,
+            safe_stop: Subscriber::new(bus, services::SAFETY_SAFE_STOP, &Qos::default())?,
+            stack_up: false,
+            active: false,
+            raises_ns: Vec::new(),
+            releases_ns: Vec::new(),
+            report: SafeStopReport::default(),
+            sim_time: 0.0,
+        })
+    }
+
+    /// Whether any fault is scheduled (the run then watches at a higher rate).
+    pub fn has_faults(&self) -> bool {
+        !self.tracked.is_empty()
+    }
+
+    /// Takes in the safe-stop samples that arrived.
+    fn watch_safe_stop(&mut self) {
+        while let Ok(Some(sample)) = self.safe_stop.receive() {
+            let stamp = sample.header.stamp_ns;
+            let active = sample.active == 1;
+            if !active && !self.stack_up {
+                self.stack_up = true;
+            } else if self.stack_up && active && !self.active {
+                self.raises_ns.push(stamp);
+                self.report.count += 1;
+                let reason = SafeStopReason::try_from(sample.reason)
+                    .map_or_else(|code| format!("code {code}"), |r| format!("{r:?}"));
+                self.report.reasons.push(reason);
+            } else if self.stack_up && !active && self.active {
+                self.releases_ns.push(stamp);
+            }
+            self.active = active;
+        }
+    }
+
+    /// One step at monotonic `now_ns` with sim-world's time `sim_time` (when known), the
+    /// supervisor's table and the heartbeats seen (name, latest).
+    pub fn step(
+        &mut self,
+        now_ns: u64,
+        sim_time: Option<f64>,
+        status: Option<&SupervisorStatus>,
+        heartbeats: &[(String, Option<Heartbeat>)],
+    ) {
+        self.watch_safe_stop();
+        if let Some(t) = sim_time {
+            self.sim_time = self.sim_time.max(t);
+        }
+        let sim_time = self.sim_time;
+        let row_of = |name: &str| {
+            status.and_then(|s| s.processes().iter().find(|p| p.name() == name).copied())
+        };
+        for t in &mut self.tracked {
+            if t.injected_ns.is_none() && sim_time_reached(sim_time, &t.fault) {
+                t.record.injected_at_s = Some(sim_time);
+                t.injected_ns = Some(now_ns);
+                match t.fault.kind {
+                    FaultKind::Kill | FaultKind::Stop => {
+                        let row = row_of(&t.fault.target)
+                            .filter(|r| r.state() == Some(SupervisedState::Running));
+                        let sig = if t.fault.kind == FaultKind::Kill {
+                            libc::SIGKILL
+                        } else {
+                            libc::SIGSTOP
+                        };
+                        match row {
+                            Some(r) if signal(r.pid, sig) => {
+                                t.record.pid = Some(r.pid);
+                                t.record.outcome = if sig == libc::SIGKILL {
+                                    "not_restarted".into()
+                                } else {
+                                    "stopped".into()
+                                };
+                                t.continue_at_ns = (t.fault.kind == FaultKind::Stop)
+                                    .then(|| now_ns + (t.fault.duration_s * 1e9) as u64);
+                            }
+                            _ => t.record.outcome = "no_process".into(),
+                        }
+                    }
+                    FaultKind::Nan => {
+                        let topic = full_topic_name(&t.fault.target);
+                        t.record.outcome = match self
+                            .injectors
+                            .iter_mut()
+                            .find(|i| i.topic() == topic)
+                            .map(|i| i.inject(Malformation::NotANumber))
+                        {
+                            Some(Ok(true)) => "published".into(),
+                            Some(Ok(false)) => "published_without_real_sample".into(),
+                            Some(Err(e)) => format!("publish_failed: {e}"),
+                            None => "no_injector".into(),
+                        };
+                    }
+                }
+            }
+            let (Some(injected), Some(pid)) = (t.injected_ns, t.record.pid) else {
+                continue;
+            };
+            if let Some(due) = t.continue_at_ns
+                && t.continued_ns.is_none()
+                && now_ns >= due
+            {
+                signal(pid, libc::SIGCONT);
+                t.continued_ns = Some(now_ns);
+                t.record.outcome = "continued".into();
+            }
+            if t.fault.kind == FaultKind::Kill {
+                if t.record.restart_ms.is_none()
+                    && let Some(row) = row_of(&t.fault.target)
+                    && row.pid != 0
+                    && row.pid != pid
+                {
+                    t.record.restart_ms = Some(ms(injected, now_ns));
+                    t.record.outcome = "restarted".into();
+                }
+                if t.record.first_heartbeat_ms.is_none()
+                    && heartbeats.iter().any(|(name, beat)| {
+                        *name == t.fault.target && beat.is_some_and(|b| b.pid != pid)
+                    })
+                {
+                    t.record.first_heartbeat_ms = Some(ms(injected, now_ns));
+                }
+            }
+        }
+        self.attribute_safe_stops();
+    }
+
+    /// Links each injected fault to the first safe-stop raise after it, and each stop to the
+    /// first release after its SIGCONT.
+    fn attribute_safe_stops(&mut self) {
+        for t in &mut self.tracked {
+            let Some(injected) = t.injected_ns else {
+                continue;
+            };
+            if t.record.safe_stop_ms.is_none()
+                && let Some(&raise) = self.raises_ns.iter().find(|&&r| r >= injected)
+            {
+                t.record.safe_stop_ms = Some(ms(injected, raise));
+            }
+            if let Some(continued) = t.continued_ns
+                && t.record.resumed_ms.is_none()
+                && let Some(&release) = self.releases_ns.iter().find(|&&r| r >= continued)
+            {
+                t.record.resumed_ms = Some(ms(continued, release));
+                t.record.outcome = "resumed".into();
+            }
+        }
+    }
+
+    /// Continues every process still stopped (before the stack is shut down) and returns the
+    /// records and the safe-stop report.
+    pub fn finish(mut self) -> (Vec<FaultRecord>, SafeStopReport) {
+        for t in &mut self.tracked {
+            if let (Some(pid), None, Some(_)) = (t.record.pid, t.continued_ns, t.continue_at_ns) {
+                signal(pid, libc::SIGCONT);
+            }
+        }
+        let latency = self
+            .tracked
+            .iter()
+            .filter(|t| t.fault.kind == FaultKind::Stop)
+            .filter_map(|t| t.record.safe_stop_ms)
+            .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+        self.report.latency_ms = latency;
+        (
+            self.tracked.into_iter().map(|t| t.record).collect(),
+            self.report,
+        )
+    }
+}
+
+/// Whether the simulated clock has reached the fault's time.
+fn sim_time_reached(sim_time: f64, fault: &Fault) -> bool {
+    sim_time >= fault.at_s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use motm_core::fault_schedule::parse_schedule;
+
+    #[test]
+    fn targets_must_be_stack_processes_or_injectable_topics() {
+        let processes = vec!["qp-resolver".to_string(), "reacher".to_string()];
+        let ok = parse_schedule(&[
+            "kill:qp-resolver@1",
+            "stop:reacher@2+0.3",
+            "nan:arm/velocity_command@3",
+            "nan:motm/v1/base/odometry@3",
+        ])
+        .unwrap();
+        check_targets(&ok, &processes).unwrap();
+        let err = check_targets(&parse_schedule(&["kill:supervisor@1"]).unwrap(), &processes)
+            .unwrap_err();
+        assert!(err.starts_with("--fault kill:supervisor") && err.contains("qp-resolver"));
+        let err = check_targets(&parse_schedule(&["nan:safety/safe_stop@1"]).unwrap(), &processes)
+            .unwrap_err();
+        assert!(err.contains("motm/v1/safety/safe_stop"), "{err}");
+    }
+}
