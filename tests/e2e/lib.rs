@@ -74,3 +74,18 @@ pub fn processes_mentioning(needle: &str) -> Vec<u32> {
     }
     found
 }
+
+/// Starts `motm <args>` via `cargo run` in the background (after building the stack), with
+/// the iceoryx2 prefix `prefix` and stdout piped; the caller waits for it.
+pub fn spawn_motm(args: &[&str], prefix: &str) -> std::process::Child {
+    build_stack();
+    Command::new(cargo())
+        .current_dir(workspace_root())
+        .args(["run", "--quiet", "-p", "motm", "--"])
+        .args(args)
+        .env(motm_bus::PREFIX_ENV, prefix)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("cargo run -p motm")
+}
