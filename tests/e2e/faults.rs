@@ -128,7 +128,10 @@ fn killing_each_service_mid_task_stays_safe_and_the_task_completes() {
     for (service, at, report, stderr) in &results {
         let record = &report["faults_injected"][0];
         assert_eq!(record["kind"], "kill", "{report}");
-        assert_eq!(record["outcome"], "restarted", "{service}@{at}: {report}\n{stderr}");
+        assert_eq!(
+            record["outcome"], "restarted",
+            "{service}@{at}: {report}\n{stderr}"
+        );
         let restart_ms = record["restart_ms"].as_f64().unwrap();
         assert!(
             restart_ms < 500.0,
@@ -190,13 +193,28 @@ fn a_hung_qp_resolver_is_safe_stopped_within_three_cycles_and_control_resumes() 
 /// Which processes read each topic the test corrupts (so every process gets bad input).
 const BAD_INPUT_TOPICS: [(&str, &[&str]); 6] = [
     (services::HW_ARM_COMMAND, &["sim-world"]),
-    (services::ARM_VELOCITY_COMMAND, &["panda-driver", "watchdog"]),
-    (services::BASE_VELOCITY_COMMAND, &["ld60-driver", "watchdog"]),
+    (
+        services::ARM_VELOCITY_COMMAND,
+        &["panda-driver", "watchdog"],
+    ),
+    (
+        services::BASE_VELOCITY_COMMAND,
+        &["ld60-driver", "watchdog"],
+    ),
     (
         services::ARM_JOINT_STATE,
-        &["perception", "reacher", "final-phase", "qp-resolver", "supervisor"],
+        &[
+            "perception",
+            "reacher",
+            "final-phase",
+            "qp-resolver",
+            "supervisor",
+        ],
     ),
-    (services::MISSION_STATE, &["base-planner", "reacher", "final-phase", "qp-resolver"]),
+    (
+        services::MISSION_STATE,
+        &["base-planner", "reacher", "final-phase", "qp-resolver"],
+    ),
     (services::CONTROL_REACH_TWIST, &["qp-resolver"]),
 ];
 
@@ -261,9 +279,19 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
     }
     drop(injectors);
     let mut stdout = String::new();
-    child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
     let mut stderr = String::new();
-    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
     child.wait().unwrap();
     drop(beats);
     drop(bus);
@@ -277,4 +305,25 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
     assert!(total >= 6 * 13, "only {total} rejected: {report}");
     eprintln!("malformed input: {total} samples dropped and counted");
     let _ = motm_bus::cleanup_dead_nodes(&ipc);
+}
+
+#[test]
+fn a_bad_fault_flag_is_named_with_exit_code_2() {
+    for (fault, needle) in [
+        ("crash:qp-resolver@1", "unknown fault kind"),
+        ("stop:qp-resolver@1", "+DURATION"),
+        ("kill:no-such-service@1", "no process"),
+        ("nan:safety/safe_stop@1", "cannot publish"),
+    ] {
+        let out = motm(
+            &["run", "--fault", fault],
+            &format!("motmfltflag{}_", std::process::id()),
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{fault}: {stderr}");
+        assert!(
+            stderr.contains("--fault") && stderr.contains(needle),
+            "{fault}: {stderr}"
+        );
+    }
 }

@@ -16,8 +16,7 @@ use motm_bus::inject::{INJECTABLE_TOPICS, Injector, Malformation, full_topic_nam
 use motm_bus::{Bus, BusError, Latest, Qos, Subscriber};
 use motm_core::fault_schedule::{Fault, FaultKind};
 use motm_msgs::{
-    DriverStatus, Heartbeat, SafeStop, SafeStopReason, SupervisedState, SupervisorStatus,
-    services,
+    DriverStatus, Heartbeat, SafeStop, SafeStopReason, SupervisedState, SupervisorStatus, services,
 };
 use serde::Serialize;
 
@@ -65,7 +64,7 @@ pub fn check_targets(faults: &[Fault], processes: &[String]) -> Result<(), Strin
     for fault in faults {
         match fault.kind {
             FaultKind::Kill | FaultKind::Stop => {
-                if !processes.iter().any(|p| *p == fault.target) {
+                if !processes.contains(&fault.target) {
                     return Err(format!(
                         "--fault {}:{}: no process {:?} in the stack (processes: {})",
                         fault.kind.name(),
@@ -366,6 +365,30 @@ impl FaultRunner {
     }
 }
 
+/// Prints the safe-stops and the faults for `motm run`'s text report.
+pub fn print_faults(faults: &[FaultRecord], safe_stops: &SafeStopReport) {
+    let latency = safe_stops
+        .latency_ms
+        .map_or_else(String::new, |l| format!(", latency {l:.1} ms"));
+    println!("safe-stops {}{latency}", safe_stops.count);
+    let figure = |name: &str, value: Option<f64>| {
+        value.map_or_else(String::new, |v| format!(", {name} {v:.0} ms"))
+    };
+    for f in faults {
+        println!(
+            "fault {}:{} at {:.2} s: {}{}{}{}{}",
+            f.kind,
+            f.target,
+            f.injected_at_s.unwrap_or(f.at_s),
+            f.outcome,
+            figure("restart", f.restart_ms),
+            figure("first heartbeat", f.first_heartbeat_ms),
+            figure("safe-stop", f.safe_stop_ms),
+            figure("released", f.resumed_ms),
+        );
+    }
+}
+
 /// Whether the simulated clock has reached the fault's time.
 fn sim_time_reached(sim_time: f64, fault: &Fault) -> bool {
     sim_time >= fault.at_s
@@ -390,8 +413,11 @@ mod tests {
         let err = check_targets(&parse_schedule(&["kill:supervisor@1"]).unwrap(), &processes)
             .unwrap_err();
         assert!(err.starts_with("--fault kill:supervisor") && err.contains("qp-resolver"));
-        let err = check_targets(&parse_schedule(&["nan:safety/safe_stop@1"]).unwrap(), &processes)
-            .unwrap_err();
+        let err = check_targets(
+            &parse_schedule(&["nan:safety/safe_stop@1"]).unwrap(),
+            &processes,
+        )
+        .unwrap_err();
         assert!(err.contains("motm/v1/safety/safe_stop"), "{err}");
     }
 }

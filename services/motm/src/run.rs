@@ -370,8 +370,8 @@ pub fn run_stack(
             "--timeout must be a finite number > 0, got {timeout_s}"
         )));
     }
-    let faults = motm_core::fault_schedule::parse_schedule(&args.faults)
-        .map_err(|e| bad(e.to_string()))?;
+    let faults =
+        motm_core::fault_schedule::parse_schedule(&args.faults).map_err(|e| bad(e.to_string()))?;
     let process_names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
     check_targets(&faults, &process_names).map_err(bad)?;
     let bin_dir = ensure_binaries(&stack)?;
@@ -579,6 +579,7 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
             p.name, p.pid, p.restarts, p.cycles, p.deadline_misses, p.p99_cycle_us
         );
     }
+    crate::faults::print_faults(&report.faults_injected, &report.safe_stops);
     Ok(())
 }
 

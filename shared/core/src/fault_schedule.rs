@@ -168,7 +168,10 @@ mod tests {
             }
         );
         let stop = parse_fault("stop:reacher@3+0.3").unwrap();
-        assert_eq!((stop.kind, stop.at_s, stop.duration_s), (FaultKind::Stop, 3.0, 0.3));
+        assert_eq!(
+            (stop.kind, stop.at_s, stop.duration_s),
+            (FaultKind::Stop, 3.0, 0.3)
+        );
         assert!((stop.end_s() - 3.3).abs() < 1e-12);
         let nan = parse_fault("nan:motm/v1/arm/velocity_command@2").unwrap();
         assert_eq!(nan.kind, FaultKind::Nan);

@@ -441,7 +441,11 @@ mod tests {
         let mut restarted = GraspController::new(config.servo, config.grasp);
         let out = restarted.step(&input);
         assert_eq!(out.stage, FinalPhaseStage::Lifting);
-        assert_eq!(out.gripper, GripperCommand::Close, "the cube is not dropped");
+        assert_eq!(
+            out.gripper,
+            GripperCommand::Close,
+            "the cube is not dropped"
+        );
         assert!(out.twist[2] > 0.0, "it lifts: {}", out.twist);
         // A hand found open starts the approach as usual, and only the first cycle decides.
         input.gripper_opening = 0.08;
