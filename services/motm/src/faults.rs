@@ -49,7 +49,9 @@ pub struct FaultRecord {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct SafeStopReport {
     /// Times safe-stop was raised after the stack first came up (the start-up hold, until
-    /// every control-path process is heard from, is not counted).
+    /// every control-path process is heard from, is not counted). Exact with `--fault` (the
+    /// run then watches at 500 Hz); without, `motm run` watches at 20 Hz and a raise shorter
+    /// than that period may go unseen.
     pub count: u32,
     /// Reason of each raise, in order.
     pub reasons: Vec<String>,
