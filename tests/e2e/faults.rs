@@ -332,3 +332,53 @@ fn a_bad_fault_flag_is_named_with_exit_code_2() {
         );
     }
 }
+
+/// Copies the folder `from` into `to`, recursively.
+fn copy_tree(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap().flatten() {
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_tree(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn a_bad_scenario_or_urdf_is_named_with_exit_code_2() {
+    let dir = std::env::temp_dir().join(format!("motm-e2e-badfiles-{}", std::process::id()));
+    copy_tree(&motm_e2e::workspace_root().join("config"), &dir);
+    let scenario = dir.join("scenarios/bad.toml");
+    std::fs::write(
+        &scenario,
+        "name = \"bad\"\nrobot = \"frankie\"\nbase_sped = 0.3\n",
+    )
+    .unwrap();
+    let urdf = dir.join("robots/frankie.urdf");
+    let text = std::fs::read_to_string(&urdf).unwrap();
+    let corrupt = text.replacen("velocity=\"", "velocity=\"fast", 1);
+    assert_ne!(text, corrupt);
+    let config_dir = dir.to_str().unwrap();
+    for (scenario, file, key) in [
+        ("bad", "bad.toml", "base_sped"),
+        ("exp1-dynamic", "frankie.urdf", "velocity"),
+    ] {
+        if file == "frankie.urdf" {
+            std::fs::write(&urdf, &corrupt).unwrap();
+        }
+        let prefix = format!("motmfltfile{}_", std::process::id());
+        let out = motm(
+            &["--config-dir", config_dir, "run", "--scenario", scenario],
+            &prefix,
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{file}: {stderr}");
+        assert!(stderr.contains(file) && stderr.contains(key), "{stderr}");
+        // Nothing was started.
+        let ipc = IpcConfig { prefix };
+        assert!(motm_bus::shared_memory_entries(&ipc).unwrap().is_empty());
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -370,6 +370,9 @@ pub fn run_stack(
             "--timeout must be a finite number > 0, got {timeout_s}"
         )));
     }
+    // The robot model is checked here too, so a bad URDF or robot file exits 2 naming the
+    // file and key before anything starts (the supervisor would otherwise exit on it).
+    motm_core::Robot::load(config_dir, &scenario.robot).map_err(|e| bad(e.to_string()))?;
     let faults =
         motm_core::fault_schedule::parse_schedule(&args.faults).map_err(|e| bad(e.to_string()))?;
     let process_names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
