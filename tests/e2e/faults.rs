@@ -195,6 +195,15 @@ fn a_hung_qp_resolver_is_safe_stopped_within_three_cycles_and_control_resumes() 
     );
     assert!(report["safe_stops"]["count"].as_u64().unwrap() >= 1);
     assert!(record["resumed_ms"].as_f64().is_some(), "{report}");
+    // The same process goes on after SIGCONT: it is neither restarted nor shut down.
+    let resolver = report["processes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "qp-resolver")
+        .unwrap();
+    assert_eq!(resolver["restarts"], 0, "{report}\n{stderr}");
+    assert_eq!(resolver["pid"], record["pid"], "{report}");
     // No step: the drivers' outputs kept every velocity, acceleration and jerk limit.
     assert_eq!(report["output_violations"], 0, "{report}");
     assert_eq!(report["success"], true, "{report}\n{stderr}");

@@ -232,13 +232,13 @@ impl FaultRunner {
     }
 
     /// One step at monotonic `now_ns` with sim-world's time `sim_time` (when known), the
-    /// supervisor's table and the heartbeats seen (name, latest).
+    /// supervisor's table and the heartbeat readers (process name, latest heartbeat).
     pub fn step(
         &mut self,
         now_ns: u64,
         sim_time: Option<f64>,
         status: Option<&SupervisorStatus>,
-        heartbeats: &[(String, Option<Heartbeat>)],
+        heartbeats: &[(String, Latest<Heartbeat>)],
     ) {
         self.watch_safe_stop();
         if let Some(t) = sim_time {
@@ -313,7 +313,7 @@ impl FaultRunner {
                 }
                 if t.record.first_heartbeat_ms.is_none()
                     && heartbeats.iter().any(|(name, beat)| {
-                        *name == t.fault.target && beat.is_some_and(|b| b.pid != pid)
+                        *name == t.fault.target && beat.get().is_some_and(|b| b.pid != pid)
                     })
                 {
                     t.record.first_heartbeat_ms = Some(ms(injected, now_ns));

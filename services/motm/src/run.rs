@@ -447,16 +447,11 @@ pub fn run_stack(
         let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(watch_rate))?;
         let exit = service.run_periodic(|cycle| {
             watch.update();
-            let beats: Vec<(String, Option<Heartbeat>)> = watch
-                .heartbeats
-                .iter()
-                .map(|(name, beat)| (name.clone(), beat.get().copied()))
-                .collect();
             fault_runner.step(
                 cycle.now_ns,
                 watch.truth.get().map(|t| t.sim_time),
                 watch.status.get(),
-                &beats,
+                &watch.heartbeats,
             );
             if watch
                 .truth

@@ -180,7 +180,7 @@ impl<'bus> ServiceLoop<'bus> {
             period_ns,
         };
         let mut stopped = false;
-        let result = waitset.wait_and_process(|id| {
+        let result = process_until_signalled(&waitset, |id| {
             if id.has_event_from(&tick) && self.cycle(Some(schedule), &mut step) == Flow::Stop {
                 stopped = true;
                 return CallbackProgression::Stop;
@@ -210,7 +210,7 @@ impl<'bus> ServiceLoop<'bus> {
             )
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         let mut stopped = false;
-        let result = waitset.wait_and_process(|id| {
+        let result = process_until_signalled(&waitset, |id| {
             if id.has_event_from(&on_data) {
                 trigger.clear();
                 if self.cycle(None, &mut step) == Flow::Stop {
@@ -225,7 +225,7 @@ impl<'bus> ServiceLoop<'bus> {
         self.finish(result, stopped, 0)
     }
 
-    /// A WaitSet that reports SIGTERM and SIGINT.
+    /// A WaitSet that reports SIGTERM and SIGINT (see [`process_until_signalled`]).
     fn waitset() -> Result<WaitSet<ipc::Service>, BusError> {
         WaitSetBuilder::new()
             .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
@@ -301,6 +301,23 @@ impl<'bus> ServiceLoop<'bus> {
             self.bus.rejected_messages(),
         )?;
         Ok(exit)
+    }
+}
+
+/// Runs `waitset` until `on_event` stops it or SIGTERM/SIGINT arrives. A process stopped with
+/// SIGSTOP and continued with SIGCONT (a hang, or a debugger) also wakes with an interrupted
+/// wait, which the WaitSet reports like SIGINT: unless the signal handler saw SIGINT or
+/// SIGTERM, the loop goes on, so the process resumes instead of shutting down.
+fn process_until_signalled(
+    waitset: &WaitSet<ipc::Service>,
+    mut on_event: impl FnMut(WaitSetAttachmentId<ipc::Service>) -> CallbackProgression,
+) -> Result<WaitSetRunResult, iceoryx2::waitset::WaitSetRunError> {
+    loop {
+        match waitset.wait_and_process(&mut on_event) {
+            Ok(WaitSetRunResult::Interrupt)
+                if !iceoryx2_bb_posix::signal::SignalHandler::termination_requested() => {}
+            other => return other,
+        }
     }
 }
 
