@@ -18,7 +18,9 @@ use motm_msgs::{
     BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TwistCommand, services,
 };
 use motm_sim::Scenario;
+use motm_supervisor::swap::SwapDriver;
 use motm_supervisor::{LaunchContext, LaunchSpec, ProcessTable, StackConfig, TableEvent, binaries};
+use motm_wire::controllers::ControllerLatest;
 use motm_wire::convert;
 use nalgebra::Vector3;
 
@@ -165,7 +167,7 @@ struct MissionPorts {
     joints: Latest<JointState>,
     odometry: Latest<BaseOdometry>,
     target: Latest<motm_msgs::TargetEstimate>,
-    final_twist: Latest<TwistCommand>,
+    final_twist: ControllerLatest<TwistCommand>,
     state: Publisher<MissionState>,
     /// When the current task started, ns: older perception estimates belong to another object.
     task_started_ns: u64,
@@ -178,14 +180,15 @@ impl MissionPorts {
             joints: Latest::new(bus, services::ARM_JOINT_STATE, &qos)?,
             odometry: Latest::new(bus, services::BASE_ODOMETRY, &qos)?,
             target: Latest::new(bus, services::PERCEPTION_TARGET, &qos)?,
-            final_twist: Latest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
+            final_twist: ControllerLatest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
             state: Publisher::new(bus, services::MISSION_STATE, &qos)?,
             task_started_ns: now_ns,
         })
     }
 
-    /// One mission cycle at `now_ns`: read, step, publish.
-    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64) {
+    /// One mission cycle at `now_ns`: read, step, publish. Task progress is taken from the
+    /// `active` final-phase controller (any, until a hot swap names one).
+    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64, active: Option<u32>) {
         // A failed read leaves the previous value, which the stamps guard.
         let _ = self.joints.update();
         let _ = self.odometry.update();
@@ -199,7 +202,7 @@ impl MissionPorts {
                     .map(convert::perceived)
                     .filter(|p| p.stamp_ns >= self.task_started_ns)
                     .map(|p| p.estimate);
-                let final_progress = self.final_twist.get().and_then(|m| {
+                let final_progress = self.final_twist.get(active).and_then(|m| {
                     Some(FinalProgress {
                         task_index: m.task_index as usize,
                         progress: convert::progress(m)?,
@@ -269,26 +272,40 @@ fn run(setup: Setup) -> Result<(), String> {
     let mut table = ProcessTable::new(specs, stack.restart, ipc);
     // The mission state is on the bus before the controllers start.
     if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-        ports.cycle(tracker, motm_bus::monotonic_now_ns());
+        ports.cycle(tracker, motm_bus::monotonic_now_ns(), None);
     }
     log(&table.start_all(motm_bus::monotonic_now_ns()));
     let _ = status.publish(table.status());
+    let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0);
+    let mut swap = SwapDriver::new(
+        &bus,
+        stack.hot_swap,
+        (1e9 / control_rate_hz) as u64,
+        grace,
+    )
+    .map_err(|e| e.to_string())?;
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(control_rate_hz))
         .map_err(|e| e.to_string())?;
     let status_every = (control_rate_hz / 10.0).ceil().max(1.0) as u64;
     let exit = service.run_periodic(|cycle| {
         let events = table.poll(cycle.now_ns);
         log(&events);
+        let base_speed = ports
+            .as_ref()
+            .and_then(|p| p.odometry.get())
+            .map_or(0.0, |o| o.v);
+        let swapped = swap.poll(&mut table, cycle.now_ns, base_speed);
         if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-            ports.cycle(tracker, cycle.now_ns);
+            ports.cycle(tracker, cycle.now_ns, swap.active_id());
         }
-        if !events.is_empty() || cycle.cycle % status_every == 0 {
+        if swapped || !events.is_empty() || cycle.cycle % status_every == 0 {
             let _ = status.publish(table.status());
         }
         Flow::Continue
     });
     eprintln!("supervisor: stopping the stack");
-    log(&table.shutdown(Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0)));
+    swap.shutdown();
+    log(&table.shutdown(grace));
     let _ = status.publish(table.status());
     exit.map(|_| ()).map_err(|e| e.to_string())
 }

@@ -37,6 +37,7 @@ pub mod config_dir;
 pub mod error;
 pub mod final_phase;
 pub mod holistic;
+pub mod hot_swap;
 pub mod input_check;
 pub mod kinematics;
 pub mod mission;

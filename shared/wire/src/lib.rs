@@ -18,6 +18,7 @@
 //! The final phase reports its task as done with `TwistCommand::progress == Done` (and the
 //! task's index); the mission's supervisor advances on that.
 
+pub mod controllers;
 pub mod convert;
 pub mod inputs;
 pub mod setup;
