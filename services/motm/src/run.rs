@@ -23,6 +23,7 @@ use motm_supervisor::{StackConfig, binaries};
 use serde::Serialize;
 
 use crate::CliError;
+use crate::swap::{SwapClient, SwapReport, parse_plan};
 
 /// Arguments of `motm run`.
 #[derive(Args, Debug)]
@@ -48,6 +49,10 @@ pub struct RunArgs {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Hot-swap a controller during the run: `PROCESS:VARIANT@SECONDS` (wall-clock seconds
+    /// after the stack started), e.g. `final-phase:press-button@12`; may be repeated.
+    #[arg(long = "swap", value_name = "PROCESS:VARIANT@SECONDS")]
+    pub swaps: Vec<String>,
 }
 
 /// One process's figures, from its last heartbeat and the supervisor's table.
@@ -93,6 +98,8 @@ pub struct RunReport {
     pub ipc_prefix: String,
     /// Files of the prefix left in /dev/shm or iceoryx2's folder after the run (must be 0).
     pub stale_shm_entries: usize,
+    /// The hot swaps requested with `--swap`, with their measured command gap.
+    pub swaps: Vec<SwapReport>,
 }
 
 /// Latest samples of everything `motm run` watches.
@@ -353,6 +360,11 @@ pub fn run_stack(
             "--timeout must be a finite number > 0, got {timeout_s}"
         )));
     }
+    let swap_plans = args
+        .swaps
+        .iter()
+        .map(|s| parse_plan(s))
+        .collect::<Result<Vec<_>, _>>()?;
     let bin_dir = ensure_binaries(&stack)?;
 
     let ipc = IpcConfig {
@@ -410,11 +422,29 @@ pub fn run_stack(
     let watched = (|| -> Result<_, motm_bus::BusError> {
         let bus = Bus::open_with("motm-run", &ipc)?;
         let mut watch = Watch::new(&bus, &names, measure_latency)?;
+        let mut swaps = swap_plans
+            .iter()
+            .map(|p| Ok((p.at_s, SwapClient::new(&bus, p.process, p.kind, 0)?)))
+            .collect::<Result<Vec<_>, motm_bus::BusError>>()?;
         let mut failure = None;
         let watch_rate = if measure_latency { 4.0 * rate } else { 20.0 };
         let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(watch_rate))?;
         let exit = service.run_periodic(|_| {
             watch.update();
+            let elapsed = wall.elapsed().as_secs_f64();
+            for (at_s, client) in &mut swaps {
+                if !client.sent() && elapsed >= *at_s {
+                    let plan = client.report();
+                    eprintln!(
+                        "motm run: requesting the swap of {} to {} at {elapsed:.2} s",
+                        plan.process, plan.variant
+                    );
+                    if let Err(e) = client.send(elapsed) {
+                        eprintln!("motm run: swap request failed: {e}");
+                    }
+                }
+                client.update();
+            }
             if watch
                 .truth
                 .get()
@@ -444,6 +474,7 @@ pub fn run_stack(
                 watch.arm_driver.get().copied(),
                 watch.base_driver.get().copied(),
             ],
+            swaps.iter().map(|(_, c)| c.report()).collect::<Vec<_>>(),
         ))
     })();
     let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
@@ -454,7 +485,7 @@ pub fn run_stack(
     let _ = unsafe { motm_bus::remove_domain(&ipc) };
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
-    let (trial, latencies, processes, drivers) =
+    let (trial, latencies, processes, drivers, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
@@ -474,6 +505,7 @@ pub fn run_stack(
             .fold(0.0, f64::max),
         ipc_prefix: ipc.prefix.clone(),
         stale_shm_entries: stale,
+        swaps,
     };
     Ok((report, latencies))
 }
@@ -487,6 +519,12 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
         return Err(CliError::Failed(format!(
             "{stale} iceoryx2 resource(s) of prefix {} left behind",
             report.ipc_prefix
+        )));
+    }
+    if let Some(swap) = report.swaps.iter().find(|s| s.outcome != "done") {
+        return Err(CliError::Failed(format!(
+            "swap of {} to {} {}",
+            swap.process, swap.variant, swap.outcome
         )));
     }
     if report.trial.success {
@@ -539,6 +577,19 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
         println!(
             "{:<14} {:>8} {:>8} {:>9} {:>8} {:>10.0}",
             p.name, p.pid, p.restarts, p.cycles, p.deadline_misses, p.p99_cycle_us
+        );
+    }
+    for s in &report.swaps {
+        println!(
+            "swap {} -> {} at {:.1} s: {}; pid {} -> {}; command gap {:.2} ms at base speed {:.2} m/s",
+            s.process,
+            s.variant,
+            s.requested_at_s,
+            s.outcome,
+            s.old_pid,
+            s.new_pid,
+            s.command_gap_ms,
+            s.base_speed
         );
     }
     Ok(())

@@ -11,9 +11,11 @@
 //! from the flip on it is the new controller's, which has been publishing (and so holds a
 //! sample at most one period old) since before the flip. So the stream the consumers see is:
 //! the old samples stamped before the flip, the flip itself (the new controller's held sample
-//! becomes usable), then the new samples stamped after it. The gap is the longest interval
-//! between consecutive events of that stream in a window around the flip; "no control cycle
-//! without a command" means it stays under one control period.
+//! becomes usable), then the new samples stamped after it. The gap the swap makes is the
+//! longer of the two intervals that meet at the flip: from the old controller's last command
+//! to the flip, and from the flip to the new controller's first command after it. "No control
+//! cycle without a command" means it stays under one control period. Intervals farther from
+//! the flip are each controller's own cycle jitter, not the swap's doing, and are left out.
 
 use serde::Deserialize;
 
@@ -227,8 +229,8 @@ impl HotSwap {
 /// The command-stream gap across a flip (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CommandGap {
-    /// Longest interval between consecutive commands the consumers can use, in the window
-    /// around the flip, ns.
+    /// The gap at the flip: the longer of old's last command → flip and flip → new's first
+    /// command after it, ns.
     pub gap_ns: u64,
     /// From the old controller's last command before the flip to the new controller's first
     /// command after it, ns (the raw stamp interval, for comparison; at most two periods).
@@ -245,12 +247,12 @@ pub struct CommandGap {
 pub fn command_gap(old: &[u64], new: &[u64], flip_ns: u64, window_ns: u64) -> Option<CommandGap> {
     let from = flip_ns.saturating_sub(window_ns);
     let to = flip_ns + window_ns;
-    let mut before: Vec<u64> = old
+    let before: Vec<u64> = old
         .iter()
         .copied()
         .filter(|&s| s >= from && s < flip_ns)
         .collect();
-    let mut after: Vec<u64> = new
+    let after: Vec<u64> = new
         .iter()
         .copied()
         .filter(|&s| s >= flip_ns && s <= to)
@@ -258,16 +260,11 @@ pub fn command_gap(old: &[u64], new: &[u64], flip_ns: u64, window_ns: u64) -> Op
     if before.is_empty() || after.is_empty() {
         return None;
     }
-    before.sort_unstable();
-    after.sort_unstable();
-    let stamp_gap_ns = after[0] - before[before.len() - 1];
-    let mut events = before.clone();
-    events.push(flip_ns);
-    events.extend(&after);
-    let gap_ns = events.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    let last_old = before.iter().copied().max()?;
+    let first_new = after.iter().copied().min()?;
     Some(CommandGap {
-        gap_ns,
-        stamp_gap_ns,
+        gap_ns: (flip_ns - last_old).max(first_new - flip_ns),
+        stamp_gap_ns: first_new - last_old,
         old_samples: before.len(),
         new_samples: after.len(),
     })
@@ -396,27 +393,32 @@ mod tests {
     }
 
     #[test]
-    fn the_gap_counts_the_flip_as_the_moment_the_new_command_becomes_usable() {
+    fn the_gap_is_the_longer_interval_that_meets_at_the_flip() {
         // Old every 5 ms at 0, 5, ..., 100; new every 5 ms at 2, 7, ...; flip at 51.
         let old: Vec<u64> = (0..=20).map(|k| k * 5 * MS).collect();
         let new: Vec<u64> = (0..=30).map(|k| (2 + k * 5) * MS).collect();
         let gap = command_gap(&old, &new, 51 * MS, 100 * MS).unwrap();
-        // Events: ... 45, 50, [flip 51], 52, 57, ...: the longest interval is a period.
-        assert_eq!(gap.gap_ns, 5 * MS);
+        // ... 45, 50, [flip 51], 52, 57, ...: old's last is 1 ms before, new's first 1 ms after.
+        assert_eq!(gap.gap_ns, MS);
         // Raw stamps: old 50 → new 52.
         assert_eq!(gap.stamp_gap_ns, 2 * MS);
         assert_eq!(gap.old_samples, 11);
-        assert_eq!(gap.new_samples, 21);
-        // The old controller stalled for 12 ms before the flip: that is the gap.
-        let stalled: Vec<u64> = old.iter().copied().filter(|&s| s != 45 * MS).collect();
+        assert_eq!(gap.new_samples, 20);
+        // The old controller stalled before the flip: 45 and 50 missing, flip at 53.
+        let stalled: Vec<u64> = old
+            .iter()
+            .copied()
+            .filter(|&s| s != 45 * MS && s != 50 * MS)
+            .collect();
         let gap = command_gap(&stalled, &new, 53 * MS, 100 * MS).unwrap();
-        assert_eq!(gap.gap_ns, 10 * MS);
-        // A new controller that goes quiet after the flip shows too.
-        let quiet: Vec<u64> = new.iter().copied().filter(|&s| s < 60 * MS).collect();
-        let gap = command_gap(&old, &quiet, 51 * MS, 100 * MS).unwrap();
-        assert_eq!(gap.gap_ns, 5 * MS);
-        let gap = command_gap(&old, &[52 * MS, 80 * MS], 51 * MS, 100 * MS).unwrap();
-        assert_eq!(gap.gap_ns, 28 * MS);
+        assert_eq!(gap.gap_ns, 13 * MS);
+        assert_eq!(gap.stamp_gap_ns, 17 * MS);
+        // A new controller whose first command after the flip comes late shows too.
+        let gap = command_gap(&old, &[40 * MS, 80 * MS], 51 * MS, 100 * MS).unwrap();
+        assert_eq!(gap.gap_ns, 29 * MS);
+        // Samples outside the window do not count.
+        let gap = command_gap(&old, &[40 * MS, 80 * MS], 51 * MS, 20 * MS);
+        assert!(gap.is_none());
         assert!(command_gap(&[], &new, 51 * MS, 100 * MS).is_none());
         assert!(command_gap(&old, &[], 51 * MS, 100 * MS).is_none());
     }

@@ -114,8 +114,8 @@ pub struct SwapStatus {
     pub command_wait_ns: u64,
     /// Stamp of the flip of the active-controller id, ns (0 before the flip).
     pub flip_stamp_ns: u64,
-    /// Longest interval between usable commands around the flip, ns (0 until done); see
-    /// `motm_core::hot_swap`.
+    /// The gap the swap made in the command stream, ns (0 until done): the longer of old's last
+    /// command → flip and flip → new's first command; see `motm_core::hot_swap`.
     pub command_gap_ns: u64,
     /// Old controller's last command before the flip to the new one's first after it, ns.
     pub stamp_gap_ns: u64,
