@@ -14,7 +14,8 @@
 //! 2. wait for its `Running` heartbeat (a real loop iteration) and its first command sample
 //!    (a fixed variant publishes only while the current task is of its kind, so the swap waits
 //!    for such a task, up to the command timeout); the old controller keeps control meanwhile;
-//! 3. flip `CONTROL_ACTIVE_CONTROLLER` to the new id, hand the new process to the process
+//! 3. flip `CONTROL_ACTIVE_CONTROLLER` to the new id (timed midway between an old command and
+//!    the new controller's next one, [`flip_time`]), hand the new process to the process
 //!    table (which from then on restarts it, with the new arguments, if it dies) and send the
 //!    old one SIGTERM; it is reaped here and never restarted;
 //! 4. measure the command gap across the flip from the stamps of both controllers' commands
@@ -29,7 +30,7 @@ use motm_bus::{Bus, BusError, IpcConfig, Publisher, Qos, Stamp, Subscriber, mono
 use motm_core::final_phase::FinalPhaseKind;
 use motm_core::hot_swap::{
     HotSwap, HotSwapConfig, SwapAction, SwapFailure, SwapInput, command_gap, controller_id_of,
-    swap_args,
+    flip_time, swap_args,
 };
 use motm_msgs::{
     ActiveController, ControllerVariant, GripperCommand, Heartbeat, Message, ProcessState,
@@ -80,6 +81,20 @@ fn launched_variant(args: &[String]) -> ControllerVariant {
     value
         .and_then(|v| v.parse::<FinalPhaseKind>().ok())
         .map_or(ControllerVariant::Grasp, variant_of)
+}
+
+/// Waits until the monotonic clock reaches `target_ns` (less than a control period, once per
+/// swap): a sleep for the bulk, then a short spin, since a sleep alone overshoots by up to a
+/// scheduler tick.
+fn wait_until(target_ns: u64) {
+    const SPIN_NS: u64 = 300_000;
+    let now = monotonic_now_ns();
+    if target_ns > now + SPIN_NS {
+        std::thread::sleep(Duration::from_nanos(target_ns - now - SPIN_NS));
+    }
+    while monotonic_now_ns() < target_ns {
+        std::hint::spin_loop();
+    }
 }
 
 /// A swap in progress.
@@ -323,8 +338,26 @@ impl SwapDriver {
         let _ = self.status.publish(report);
     }
 
-    /// Flips the active id, hands the new process to the table and stops the old one.
+    /// Flips the active id at the best moment within a period ([`flip_time`]), hands the new
+    /// process to the table and stops the old one.
     fn flip(&mut self, table: &mut ProcessTable, base_speed: f64) {
+        let Some(target) = self.current.as_ref().and_then(|c| {
+            let old = c.old_stamps.iter().copied().max()?;
+            let new = c.new_stamps.iter().copied().max()?;
+            let now = monotonic_now_ns();
+            (now.saturating_sub(old) < 2 * self.period_ns)
+                .then(|| flip_time(now, old, new, self.period_ns))
+        }) else {
+            return self.flip_now(table, base_speed);
+        };
+        wait_until(target);
+        self.flip_now(table, base_speed);
+    }
+
+    /// Flips at once (see [`SwapDriver::flip`]). The command queues are read just before and
+    /// just after, so that no command near the flip is lost to a full queue.
+    fn flip_now(&mut self, table: &mut ProcessTable, base_speed: f64) {
+        self.take_samples();
         let Some(mut current) = self.current.take() else {
             return;
         };
@@ -360,6 +393,7 @@ impl SwapDriver {
         );
         let _ = self.status.publish(current.report);
         self.current = Some(current);
+        self.take_samples();
     }
 
     /// Measures the gap and reports success.

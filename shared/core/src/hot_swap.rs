@@ -270,6 +270,24 @@ pub fn command_gap(old: &[u64], new: &[u64], flip_ns: u64, window_ns: u64) -> Op
     })
 }
 
+/// When to flip, at or after `now_ns`: midway between one of the old controller's commands and
+/// the new controller's next one, predicted from their last command stamps and the common
+/// `period_ns`. Both controllers run at the same rate with a fixed phase between them, so this
+/// bounds the gap at the flip by half a period (plus jitter) whatever that phase is; flipping
+/// at an arbitrary moment could make it a whole period. The wait is less than one period.
+pub fn flip_time(now_ns: u64, last_old_ns: u64, last_new_ns: u64, period_ns: u64) -> u64 {
+    let period = i128::from(period_ns.max(1));
+    let phase = (i128::from(last_new_ns) - i128::from(last_old_ns)).rem_euclid(period);
+    let first = i128::from(last_old_ns) + phase / 2;
+    let now = i128::from(now_ns);
+    let steps = if now > first {
+        (now - first + period - 1) / period
+    } else {
+        0
+    };
+    (first + steps * period).max(now) as u64
+}
+
 /// The arguments of the new controller process: `args` without any `--variant` and
 /// `--controller-id` (spaced or `=` forms), then `--variant <variant> --controller-id <id>`.
 pub fn swap_args(args: &[String], variant: &str, controller_id: u32) -> Vec<String> {
@@ -421,6 +439,28 @@ mod tests {
         assert!(gap.is_none());
         assert!(command_gap(&[], &new, 51 * MS, 100 * MS).is_none());
         assert!(command_gap(&old, &[], 51 * MS, 100 * MS).is_none());
+    }
+
+    #[test]
+    fn the_flip_falls_midway_between_an_old_command_and_the_next_new_one() {
+        // Old at 100, 105, ...; new 2 ms after each old one: flip at 101 + 5k.
+        assert_eq!(flip_time(103 * MS, 100 * MS, 102 * MS, 5 * MS), 106 * MS);
+        assert_eq!(flip_time(101 * MS, 100 * MS, 102 * MS, 5 * MS), 101 * MS);
+        // New 4 ms after old (= 1 ms before the next old): flip 2 ms after an old command.
+        assert_eq!(flip_time(110 * MS, 100 * MS, 99 * MS, 5 * MS), 112 * MS);
+        // Never in the past, never a period or more ahead.
+        for now in (100..130).map(|t| t * MS + 123) {
+            let t = flip_time(now, 100 * MS, 97 * MS, 5 * MS);
+            assert!(t >= now && t < now + 5 * MS, "{now} -> {t}");
+        }
+        // The gap of a flip there is at most half a period on ideal streams.
+        let old: Vec<u64> = (0..40).map(|k| k * 5 * MS).collect();
+        for lag in 1..5 {
+            let new: Vec<u64> = (0..40).map(|k| (lag + k * 5) * MS).collect();
+            let flip = flip_time(60 * MS, 55 * MS, (50 + lag) * MS, 5 * MS);
+            let gap = command_gap(&old, &new, flip, 50 * MS).unwrap();
+            assert!(gap.gap_ns <= 5 * MS / 2, "lag {lag}: {gap:?}");
+        }
     }
 
     #[test]
