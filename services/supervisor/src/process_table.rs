@@ -363,12 +363,17 @@ impl Drop for ProcessTable {
 }
 
 /// The command that starts a supervised child from `spec`: its own process group (a Ctrl-C on
-/// the terminal reaches only the supervisor) and SIGTERM when the supervisor dies.
+/// the terminal reaches only the supervisor), SIGTERM when the supervisor dies, and none of
+/// the supervisor's systemd notification variables.
 pub fn child_command(spec: &LaunchSpec) -> Command {
     let parent = std::process::id() as libc::pid_t;
     let mut command = Command::new(&spec.program);
     command.args(&spec.args);
     command.envs(spec.env.iter().map(|(k, v)| (k, v)));
+    // The supervisor's own systemd notification socket and watchdog are not the children's.
+    for var in ["NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"] {
+        command.env_remove(var);
+    }
     // SAFETY: only async-signal-safe calls (setpgid, prctl, getppid) between fork and exec.
     unsafe {
         command.pre_exec(move || {

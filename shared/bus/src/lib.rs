@@ -38,6 +38,7 @@ mod ports;
 mod process;
 mod service_loop;
 mod stats;
+mod systemd;
 
 pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
 pub use clock::monotonic_now_ns;
@@ -46,6 +47,7 @@ pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};
 pub use process::OwnedProcess;
 pub use service_loop::{CycleContext, Flow, LoopConfig, LoopExit, ServiceLoop};
 pub use stats::{CycleStats, percentile};
+pub use systemd::SystemdNotifier;
 
 use std::cell::{Cell, RefCell};
 use std::rc::{Rc, Weak};
