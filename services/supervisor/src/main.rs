@@ -55,6 +55,14 @@ struct Args {
     /// Only manage the processes; publish no mission.
     #[arg(long)]
     no_mission: bool,
+    /// Start no process: something else runs them (systemd units, see deploy/); the
+    /// supervisor runs the mission only, and hot swaps are refused.
+    #[arg(long)]
+    no_spawn: bool,
+    /// Print each process's name and expanded arguments (`name<TAB>args`, one per line) and
+    /// exit; deploy/install.sh writes the systemd units' argument files from it.
+    #[arg(long)]
+    print_launch: bool,
 }
 
 /// Everything the supervisor needs, checked before anything starts.
@@ -84,7 +92,8 @@ fn setup(args: &Args) -> Result<Setup, String> {
         None => binaries::own_dir().map_err(|e| format!("cannot find own executable: {e}"))?,
     };
     let missing = binaries::missing(&bin_dir, stack.processes.iter().map(|p| p.name.as_str()));
-    if !missing.is_empty() {
+    // Without spawning, the binaries may live elsewhere (or not be installed, like sim-world).
+    if !missing.is_empty() && !args.no_spawn && !args.print_launch {
         return Err(format!(
             "service binaries missing in {}: {}",
             bin_dir.display(),
@@ -312,13 +321,22 @@ fn run(setup: Setup) -> Result<(), String> {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let setup = match setup(&args) {
+    let mut setup = match setup(&args) {
         Ok(setup) => setup,
         Err(e) => {
             eprintln!("supervisor: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
+    if args.print_launch {
+        for spec in &setup.specs {
+            println!("{}\t{}", spec.name, spec.args.join(" "));
+        }
+        return ExitCode::SUCCESS;
+    }
+    if args.no_spawn {
+        setup.specs.clear();
+    }
     match run(setup) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
