@@ -74,3 +74,14 @@ pub fn processes_mentioning(needle: &str) -> Vec<u32> {
     }
     found
 }
+
+/// The folder of the stack's binaries, after building them (the target folder of this test).
+pub fn stack_bin_dir() -> PathBuf {
+    build_stack();
+    let exe = std::env::current_exe().expect("test executable");
+    // <target>/<profile>/deps/<test>: the binaries are in <target>/<profile>.
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("target profile folder")
+        .to_path_buf()
+}
