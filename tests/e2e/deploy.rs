@@ -67,7 +67,13 @@ fn installed_units_pass_systemd_analyze_verify() {
         })
         .collect();
     instances.sort();
-    for name in ["panda-driver", "qp-resolver", "final-phase", "supervisor", "watchdog"] {
+    for name in [
+        "panda-driver",
+        "qp-resolver",
+        "final-phase",
+        "supervisor",
+        "watchdog",
+    ] {
         assert!(instances.iter().any(|i| i == name), "{name}: {instances:?}");
     }
     let supervisor = std::fs::read_to_string(root.join("etc/env/supervisor.env")).unwrap();

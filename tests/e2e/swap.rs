@@ -37,7 +37,10 @@ fn run_with_swap(tag: &str, extra: &[&str]) -> (Value, Value, String) {
     assert!(swap["stamp_gap_ms"].as_f64().unwrap() > 0.0, "{swap}");
     // The robot was moving when the controller changed.
     assert!(swap["base_speed"].as_f64().unwrap() > 0.1, "{swap}");
-    assert_ne!(swap["new_controller_id"], swap["old_controller_id"], "{swap}");
+    assert_ne!(
+        swap["new_controller_id"], swap["old_controller_id"],
+        "{swap}"
+    );
     // The supervisor owns the new process: it is final-phase's instance at the end, and the
     // swap is no restart.
     let final_phase = report["processes"]
@@ -52,7 +55,10 @@ fn run_with_swap(tag: &str, extra: &[&str]) -> (Value, Value, String) {
     // Nothing left: neither process, no shared memory.
     for pid in [&swap["old_pid"], &swap["new_pid"]] {
         let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-        assert!(stat.is_empty() || stat.contains(") Z "), "pid {pid} survived");
+        assert!(
+            stat.is_empty() || stat.contains(") Z "),
+            "pid {pid} survived"
+        );
     }
     assert!(processes_mentioning(&prefix).is_empty());
     assert_eq!(report["stale_shm_entries"], 0, "{report}");

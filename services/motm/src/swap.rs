@@ -202,8 +202,8 @@ pub fn run(args: &SwapArgs) -> Result<(), CliError> {
     };
     let failed = |e: BusError| CliError::Failed(e.to_string());
     let bus = Bus::open_with(&format!("motm-swap-{}", std::process::id()), &ipc).map_err(failed)?;
-    let mut client =
-        SwapClient::new(&bus, process, kind, args.command_timeout_ms.unwrap_or(0)).map_err(failed)?;
+    let mut client = SwapClient::new(&bus, process, kind, args.command_timeout_ms.unwrap_or(0))
+        .map_err(failed)?;
     client.send(0.0).map_err(failed)?;
     let start = Instant::now();
     let wait = Duration::from_secs_f64(args.timeout);

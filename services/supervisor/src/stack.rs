@@ -9,8 +9,8 @@
 use std::path::{Path, PathBuf};
 
 use motm_core::ModelError;
-use motm_core::restart_policy::RestartPolicy;
 use motm_core::hot_swap::HotSwapConfig;
+use motm_core::restart_policy::RestartPolicy;
 use motm_core::watchdog::WatchdogConfig;
 use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
 use serde::Deserialize;

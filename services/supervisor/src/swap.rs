@@ -240,9 +240,8 @@ impl SwapDriver {
         };
         let mut heartbeat_seen = false;
         while let Ok(Some(beat)) = self.heartbeats.receive() {
-            heartbeat_seen |= new_pid != 0
-                && beat.pid == new_pid
-                && beat.state() == Some(ProcessState::Running);
+            heartbeat_seen |=
+                new_pid != 0 && beat.pid == new_pid && beat.state() == Some(ProcessState::Running);
         }
         let mut stamps: Vec<(u32, u64)> = Vec::new();
         while let Ok(Some(m)) = self.twists.receive() {
@@ -323,7 +322,8 @@ impl SwapDriver {
             kind.name(),
             child.id()
         );
-        let timeout_ms = (request.command_timeout_ms > 0).then_some(request.command_timeout_ms as f64);
+        let timeout_ms =
+            (request.command_timeout_ms > 0).then_some(request.command_timeout_ms as f64);
         self.current = Some(InProgress {
             name,
             swap: HotSwap::new(self.config, now_ns, self.period_ns, timeout_ms),
@@ -362,8 +362,8 @@ impl SwapDriver {
             return;
         };
         let new_id = current.report.new_controller_id;
-        let variant = ControllerVariant::try_from(current.report.variant)
-            .unwrap_or(ControllerVariant::Grasp);
+        let variant =
+            ControllerVariant::try_from(current.report.variant).unwrap_or(ControllerVariant::Grasp);
         let flip_ns = monotonic_now_ns();
         self.publish_active(new_id, variant, Some(flip_ns));
         if let Some(child) = current.child.take() {
@@ -497,10 +497,7 @@ impl SwapDriver {
         let grace = self.grace;
         self.retiring.retain_mut(|r| {
             if let Ok(Some(status)) = r.child.try_wait() {
-                eprintln!(
-                    "supervisor: retired pid {} exited ({status})",
-                    r.child.id()
-                );
+                eprintln!("supervisor: retired pid {} exited ({status})", r.child.id());
                 return false;
             }
             if r.since.elapsed() > grace {

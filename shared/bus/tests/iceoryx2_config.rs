@@ -34,7 +34,10 @@ fn a_bad_config_file_names_the_file() {
     for path in [bad.clone(), dir.join("missing.toml")] {
         let err = ipc.iceoryx2_from(Some(&path)).unwrap_err();
         assert!(matches!(err, BusError::Config { .. }), "{err}");
-        assert!(err.to_string().contains(&path.display().to_string()), "{err}");
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

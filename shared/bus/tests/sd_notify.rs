@@ -67,11 +67,17 @@ fn ready_and_watchdog_follow_real_loop_iterations_and_nothing_without_a_socket()
         // READY=1 (with the first WATCHDOG=1) arrives after the first iteration, once.
         assert_eq!(seen[0].0, 1, "{seen:?}");
         assert_eq!(seen[0].1, "READY=1\nWATCHDOG=1\n");
-        assert_eq!(seen.iter().filter(|(_, m)| m.contains("READY=1")).count(), 1);
+        assert_eq!(
+            seen.iter().filter(|(_, m)| m.contains("READY=1")).count(),
+            1
+        );
         // Then WATCHDOG=1 every 20 ms of wall time (at least 200 ms pass in 40 cycles), never
         // more than one per completed iteration.
         let watchdogs = seen.iter().filter(|(_, m)| m == "WATCHDOG=1\n").count();
-        assert!((5..40).contains(&watchdogs), "{watchdogs} watchdog pings: {seen:?}");
+        assert!(
+            (5..40).contains(&watchdogs),
+            "{watchdogs} watchdog pings: {seen:?}"
+        );
         assert_eq!(seen.last().unwrap().1, "STOPPING=1\n");
 
         // Without NOTIFY_SOCKET nothing is sent.

@@ -360,12 +360,7 @@ mod tests {
         assert_eq!(swap.stage(), SwapStage::WaitCommand);
         assert_eq!(swap.heartbeat_wait_ns(), Some(200 * MS));
         assert_eq!(swap.step(&input(1210, true, true)), SwapAction::Flip);
-        assert_eq!(
-            swap.stage(),
-            SwapStage::Measuring {
-                flip_ns: 1210 * MS
-            }
-        );
+        assert_eq!(swap.stage(), SwapStage::Measuring { flip_ns: 1210 * MS });
         assert_eq!(swap.command_wait_ns(), Some(210 * MS));
         // The window is 20 periods = 100 ms.
         assert_eq!(swap.step(&input(1300, true, true)), SwapAction::Wait);
@@ -406,7 +401,10 @@ mod tests {
             new_exited: true,
             ..input(10, true, true)
         };
-        assert_eq!(swap.step(&exited), SwapAction::Abort(SwapFailure::NewExited));
+        assert_eq!(
+            swap.step(&exited),
+            SwapAction::Abort(SwapFailure::NewExited)
+        );
         assert_eq!(swap.stage(), SwapStage::Failed(SwapFailure::NewExited));
     }
 

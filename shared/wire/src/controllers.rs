@@ -123,9 +123,12 @@ mod tests {
         };
         {
             let bus = Bus::open_with("controllers-cap", &ipc).unwrap();
-            let mut reader =
-                ControllerLatest::<TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &Qos::default())
-                    .unwrap();
+            let mut reader = ControllerLatest::<TwistCommand>::new(
+                &bus,
+                services::CONTROL_FINAL_TWIST,
+                &Qos::default(),
+            )
+            .unwrap();
             for id in 1..=5 {
                 reader.insert(twist(id, u64::from(id)));
             }
