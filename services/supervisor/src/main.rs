@@ -278,6 +278,10 @@ fn run(setup: Setup) -> Result<(), String> {
         }
         None => None,
     };
+    // Every port is open before the first child starts (and before the first status says so).
+    let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0);
+    let mut swap = SwapDriver::new(&bus, stack.hot_swap, (1e9 / control_rate_hz) as u64, grace)
+        .map_err(|e| e.to_string())?;
     let mut table = ProcessTable::new(specs, stack.restart, ipc);
     // The mission state is on the bus before the controllers start.
     if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
@@ -285,9 +289,6 @@ fn run(setup: Setup) -> Result<(), String> {
     }
     log(&table.start_all(motm_bus::monotonic_now_ns()));
     let _ = status.publish(table.status());
-    let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0);
-    let mut swap = SwapDriver::new(&bus, stack.hot_swap, (1e9 / control_rate_hz) as u64, grace)
-        .map_err(|e| e.to_string())?;
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(control_rate_hz))
         .map_err(|e| e.to_string())?;
     let status_every = (control_rate_hz / 10.0).ceil().max(1.0) as u64;
