@@ -30,7 +30,7 @@ use motm_bus::{Bus, BusError, IpcConfig, Publisher, Qos, Stamp, Subscriber, mono
 use motm_core::final_phase::FinalPhaseKind;
 use motm_core::hot_swap::{
     HotSwap, HotSwapConfig, SwapAction, SwapFailure, SwapInput, command_gap, controller_id_of,
-    flip_time, swap_args,
+    flag_value, flip_time, swap_args,
 };
 use motm_msgs::{
     ActiveController, ControllerVariant, GripperCommand, Heartbeat, Message, ProcessState,
@@ -70,15 +70,7 @@ pub fn variant_of(kind: FinalPhaseKind) -> ControllerVariant {
 /// The fixed variant in a controller's launch arguments; a mission-following controller (no
 /// `--variant`) is announced as `Grasp`, its first task's variant.
 fn launched_variant(args: &[String]) -> ControllerVariant {
-    let mut value = None;
-    for (i, arg) in args.iter().enumerate() {
-        if arg == "--variant" {
-            value = args.get(i + 1).cloned();
-        } else if let Some(v) = arg.strip_prefix("--variant=") {
-            value = Some(v.to_owned());
-        }
-    }
-    value
+    flag_value(args, "--variant")
         .and_then(|v| v.parse::<FinalPhaseKind>().ok())
         .map_or(ControllerVariant::Grasp, variant_of)
 }

@@ -320,18 +320,28 @@ pub fn swap_args(args: &[String], variant: &str, controller_id: u32) -> Vec<Stri
     out
 }
 
-/// The controller id a process was started with: the value of `--controller-id` in `args`,
-/// or `default` (the controller's own default) when absent or unreadable.
-pub fn controller_id_of(args: &[String], default: u32) -> u32 {
+/// The value of the last `flag` in `args` (`--flag value` or `--flag=value`), if any.
+pub fn flag_value<'a>(args: &'a [String], flag: &str) -> Option<&'a str> {
     let mut value = None;
     for (i, arg) in args.iter().enumerate() {
-        if arg == "--controller-id" {
+        if arg == flag {
             value = args.get(i + 1).map(String::as_str);
-        } else if let Some(v) = arg.strip_prefix("--controller-id=") {
+        } else if let Some(v) = arg
+            .strip_prefix(flag)
+            .and_then(|rest| rest.strip_prefix('='))
+        {
             value = Some(v);
         }
     }
-    value.and_then(|v| v.parse().ok()).unwrap_or(default)
+    value
+}
+
+/// The controller id a process was started with: the value of `--controller-id` in `args`,
+/// or `default` (the controller's own default) when absent or unreadable.
+pub fn controller_id_of(args: &[String], default: u32) -> u32 {
+    flag_value(args, "--controller-id")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 #[cfg(test)]
