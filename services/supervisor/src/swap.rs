@@ -45,6 +45,9 @@ use crate::process_table::{ProcessTable, child_command, signal};
 /// arguments name none.
 pub const DEFAULT_CONTROLLER_ID: u32 = 1;
 
+/// Attempts at timing the flip while both controllers are on time (see [`SwapDriver::flip`]).
+const FLIP_TRIES: usize = 4;
+
 /// Most command stamps kept per controller during one swap (a minute at 200 Hz, two streams).
 const MAX_STAMPS: usize = 24_000;
 
@@ -330,20 +333,42 @@ impl SwapDriver {
         let _ = self.status.publish(report);
     }
 
-    /// Flips the active id at the best moment within a period ([`flip_time`]), hands the new
-    /// process to the table and stops the old one.
+    /// Flips the active id at the best moment within a period ([`flip_time`]) at which both
+    /// controllers are on time, hands the new process to the table and stops the old one.
     fn flip(&mut self, table: &mut ProcessTable, base_speed: f64) {
-        let Some(target) = self.current.as_ref().and_then(|c| {
-            let old = c.old_stamps.iter().copied().max()?;
-            let new = c.new_stamps.iter().copied().max()?;
+        // A few tries at most: each waits less than a period.
+        for _ in 0..FLIP_TRIES {
+            let Some((old, new)) = self.last_stamps() else {
+                break;
+            };
             let now = monotonic_now_ns();
-            (now.saturating_sub(old) < 2 * self.period_ns)
-                .then(|| flip_time(now, old, new, self.period_ns))
-        }) else {
-            return self.flip_now(table, base_speed);
-        };
-        wait_until(target);
+            if now.saturating_sub(old) >= 2 * self.period_ns {
+                // The old controller does not command (not its task): nothing to time.
+                break;
+            }
+            wait_until(flip_time(now, old, new, self.period_ns));
+            self.take_samples();
+            // Flip only while both controllers are on time: a controller that has been
+            // silent for a period (a late cycle) would make the gap; wait for its command and
+            // time the flip again.
+            let now = monotonic_now_ns();
+            if let Some((old, new)) = self.last_stamps()
+                && now - old.min(now) < self.period_ns
+                && now - new.min(now) < self.period_ns
+            {
+                break;
+            }
+        }
         self.flip_now(table, base_speed);
+    }
+
+    /// The newest command stamps of the old and the new controller in the swap in progress.
+    fn last_stamps(&self) -> Option<(u64, u64)> {
+        let c = self.current.as_ref()?;
+        Some((
+            c.old_stamps.iter().copied().max()?,
+            c.new_stamps.iter().copied().max()?,
+        ))
     }
 
     /// Flips at once (see [`SwapDriver::flip`]). The command queues are read just before and
