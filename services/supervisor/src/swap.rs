@@ -11,8 +11,8 @@
 //! 1. announce the old controller's id as active (consumers then drop anything else), and start
 //!    the new process from the old one's launch arguments with `--variant <new>` and a new
 //!    `--controller-id` (one more than any id used so far);
-//! 2. wait for its `Running` heartbeat (a real loop iteration) and its first command sample
-//!    (a fixed variant publishes only while the current task is of its kind, so the swap waits
+//! 2. wait for its `Running` heartbeat (a real loop iteration) and for it to command steadily
+//!    (`hot_swap.steady_commands` commands on time, from its first command sample; a fixed variant publishes only while the current task is of its kind, so the swap waits
 //!    for such a task, up to the command timeout); the old controller keeps control meanwhile;
 //! 3. flip `CONTROL_ACTIVE_CONTROLLER` to the new id (timed midway between an old command and
 //!    the new controller's next one, [`flip_time`]), hand the new process to the process
@@ -30,7 +30,7 @@ use motm_bus::{Bus, BusError, IpcConfig, Publisher, Qos, Stamp, Subscriber, mono
 use motm_core::final_phase::FinalPhaseKind;
 use motm_core::hot_swap::{
     HotSwap, HotSwapConfig, SwapAction, SwapFailure, SwapInput, command_gap, controller_id_of,
-    flag_value, flip_time, swap_args,
+    flag_value, flip_time, steady, swap_args,
 };
 use motm_msgs::{
     ActiveController, ControllerVariant, GripperCommand, Heartbeat, Message, ProcessState,
@@ -185,10 +185,14 @@ impl SwapDriver {
             .child
             .as_mut()
             .is_some_and(|c| !matches!(c.try_wait(), Ok(None)));
+        // The new controller takes over once it commands steadily, not at its first command.
+        let steady_commands = self.config.steady_commands as usize;
+        let command_steady =
+            current.command_seen && steady(&current.new_stamps, self.period_ns, steady_commands);
         let action = current.swap.step(&SwapInput {
             now_ns,
             heartbeat_seen: current.heartbeat_seen,
-            command_seen: current.command_seen,
+            command_seen: command_steady,
             new_exited,
         });
         match action {
@@ -348,13 +352,14 @@ impl SwapDriver {
             }
             wait_until(flip_time(now, old, new, self.period_ns));
             self.take_samples();
-            // Flip only while both controllers are on time: a controller that has been
-            // silent for a period (a late cycle) would make the gap; wait for its command and
-            // time the flip again.
+            // Flip only while both controllers are on time: at the chosen moment the old one
+            // commanded less than half a period ago and the new one less than a period ago
+            // (both with half a period to spare). A controller silent for longer is in a late
+            // cycle, which would make the gap: wait for its command and time the flip again.
             let now = monotonic_now_ns();
             if let Some((old, new)) = self.last_stamps()
                 && now - old.min(now) < self.period_ns
-                && now - new.min(now) < self.period_ns
+                && now - new.min(now) < self.period_ns + self.period_ns / 2
             {
                 break;
             }

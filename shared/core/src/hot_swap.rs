@@ -34,6 +34,11 @@ pub struct HotSwapConfig {
     /// Half-width of the window around the flip in which the command gap is measured, in
     /// control periods (default 20: 100 ms at 200 Hz on each side).
     pub gap_window_periods: u32,
+    /// Consecutive commands the new controller must have sent on time (each within one and a
+    /// half periods of the one before) before it takes over (default 20: 100 ms at 200 Hz).
+    /// A process that has just started is often slow for its first cycles (page faults, cold
+    /// caches); handing it control then would put its late cycles into the command stream.
+    pub steady_commands: u32,
 }
 
 impl Default for HotSwapConfig {
@@ -42,6 +47,7 @@ impl Default for HotSwapConfig {
             heartbeat_timeout_ms: 10_000.0,
             command_timeout_ms: 10_000.0,
             gap_window_periods: 20,
+            steady_commands: 20,
         }
     }
 }
@@ -288,6 +294,16 @@ pub fn flip_time(now_ns: u64, last_old_ns: u64, last_new_ns: u64, period_ns: u64
     (first + steps * period).max(now) as u64
 }
 
+/// Whether the last `count` intervals between the command `stamps` (in arrival order) are
+/// each at most one and a half `period_ns`: the controller is cycling steadily.
+pub fn steady(stamps: &[u64], period_ns: u64, count: usize) -> bool {
+    let limit = period_ns + period_ns / 2;
+    stamps.len() > count
+        && stamps[stamps.len() - count - 1..]
+            .windows(2)
+            .all(|w| w[1].saturating_sub(w[0]) <= limit)
+}
+
 /// The arguments of the new controller process: `args` without any `--variant` and
 /// `--controller-id` (spaced or `=` forms), then `--variant <variant> --controller-id <id>`.
 pub fn swap_args(args: &[String], variant: &str, controller_id: u32) -> Vec<String> {
@@ -469,6 +485,20 @@ mod tests {
             let gap = command_gap(&old, &new, flip, 50 * MS).unwrap();
             assert!(gap.gap_ns <= 5 * MS / 2, "lag {lag}: {gap:?}");
         }
+    }
+
+    #[test]
+    fn a_controller_is_steady_after_enough_commands_on_time() {
+        let regular: Vec<u64> = (0..30).map(|k| k * 5 * MS).collect();
+        assert!(steady(&regular, 5 * MS, 20));
+        assert!(!steady(&regular[..20], 5 * MS, 20));
+        // One late cycle (8 ms) among the last 20 intervals: not yet.
+        let mut late = regular.clone();
+        for s in &mut late[25..] {
+            *s += 3 * MS;
+        }
+        assert!(steady(&late, 5 * MS, 4));
+        assert!(!steady(&late, 5 * MS, 5));
     }
 
     #[test]
