@@ -89,3 +89,14 @@ pub fn spawn_motm(args: &[&str], prefix: &str) -> std::process::Child {
         .spawn()
         .expect("cargo run -p motm")
 }
+
+/// The folder of the stack's binaries, after building them (the target folder of this test).
+pub fn stack_bin_dir() -> PathBuf {
+    build_stack();
+    let exe = std::env::current_exe().expect("test executable");
+    // <target>/<profile>/deps/<test>: the binaries are in <target>/<profile>.
+    exe.parent()
+        .and_then(Path::parent)
+        .expect("target profile folder")
+        .to_path_buf()
+}

@@ -9,6 +9,7 @@ mod plots;
 mod report;
 mod run;
 mod status;
+mod swap;
 mod trial;
 
 use std::path::PathBuf;
@@ -74,6 +75,8 @@ enum Command {
     Run(run::RunArgs),
     /// Show the live process table of a running stack.
     Status(status::StatusArgs),
+    /// Hot-swap a controller process of a running stack (e.g. `motm swap final-phase press-button`).
+    Swap(swap::SwapArgs),
 }
 
 fn main() -> ExitCode {
@@ -87,6 +90,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => experiment::run(&config_dir, &args),
         Command::Run(args) => run::run(&config_dir, &args),
         Command::Status(args) => status::run(&args),
+        Command::Swap(args) => swap::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -24,6 +24,7 @@ use serde::Serialize;
 
 use crate::CliError;
 use crate::faults::{DriverTotals, FaultRecord, FaultRunner, SafeStopReport, check_targets};
+use crate::swap::{SwapClient, SwapReport, parse_plan};
 
 /// Arguments of `motm run`.
 #[derive(Args, Debug)]
@@ -54,6 +55,10 @@ pub struct RunArgs {
     /// SECONDS of simulated time.
     #[arg(long = "fault", value_name = "FAULT")]
     pub faults: Vec<String>,
+    /// Hot-swap a controller during the run: `PROCESS:VARIANT@SECONDS` (wall-clock seconds
+    /// after the stack started), e.g. `final-phase:press-button@12`; may be repeated.
+    #[arg(long = "swap", value_name = "PROCESS:VARIANT@SECONDS")]
+    pub swaps: Vec<String>,
 }
 
 /// One process's figures, from its last heartbeat and the supervisor's table.
@@ -103,6 +108,8 @@ pub struct RunReport {
     pub safe_stops: SafeStopReport,
     /// The `--fault` faults and what followed each.
     pub faults_injected: Vec<FaultRecord>,
+    /// The hot swaps requested with `--swap`, with their measured command gap.
+    pub swaps: Vec<SwapReport>,
 }
 
 /// Latest samples of everything `motm run` watches.
@@ -377,6 +384,11 @@ pub fn run_stack(
         motm_core::fault_schedule::parse_schedule(&args.faults).map_err(|e| bad(e.to_string()))?;
     let process_names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
     check_targets(&faults, &process_names).map_err(bad)?;
+    let swap_plans = args
+        .swaps
+        .iter()
+        .map(|s| parse_plan(s))
+        .collect::<Result<Vec<_>, _>>()?;
     let bin_dir = ensure_binaries(&stack)?;
 
     let ipc = IpcConfig {
@@ -435,6 +447,10 @@ pub fn run_stack(
         let bus = Bus::open_with("motm-run", &ipc)?;
         let mut watch = Watch::new(&bus, &names, measure_latency)?;
         let mut fault_runner = FaultRunner::new(&bus, &faults)?;
+        let mut swaps = swap_plans
+            .iter()
+            .map(|p| Ok((p.at_s, SwapClient::new(&bus, p.process, p.kind, 0)?)))
+            .collect::<Result<Vec<_>, motm_bus::BusError>>()?;
         let mut failure = None;
         // Faults are timed and measured to a few ms: the watch loop then runs at 500 Hz.
         let watch_rate = if measure_latency {
@@ -453,6 +469,20 @@ pub fn run_stack(
                 watch.status.get(),
                 &watch.heartbeats,
             );
+            let elapsed = wall.elapsed().as_secs_f64();
+            for (at_s, client) in &mut swaps {
+                if !client.sent() && elapsed >= *at_s {
+                    let plan = client.report();
+                    eprintln!(
+                        "motm run: requesting the swap of {} to {} at {elapsed:.2} s",
+                        plan.process, plan.variant
+                    );
+                    if let Err(e) = client.send(elapsed) {
+                        eprintln!("motm run: swap request failed: {e}");
+                    }
+                }
+                client.update();
+            }
             if watch
                 .truth
                 .get()
@@ -482,6 +512,7 @@ pub fn run_stack(
             std::mem::take(&mut watch.drivers),
             records,
             safe_stops,
+            swaps.iter().map(|(_, c)| c.report()).collect::<Vec<_>>(),
         ))
     })();
     let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
@@ -492,7 +523,7 @@ pub fn run_stack(
     let _ = unsafe { motm_bus::remove_domain(&ipc) };
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
-    let (trial, latencies, processes, drivers, faults_injected, safe_stops) =
+    let (trial, latencies, processes, drivers, faults_injected, safe_stops, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
@@ -510,6 +541,7 @@ pub fn run_stack(
         stale_shm_entries: stale,
         safe_stops,
         faults_injected,
+        swaps,
     };
     Ok((report, latencies))
 }
@@ -523,6 +555,12 @@ pub fn run(config_dir: &Path, args: &RunArgs) -> Result<(), CliError> {
         return Err(CliError::Failed(format!(
             "{stale} iceoryx2 resource(s) of prefix {} left behind",
             report.ipc_prefix
+        )));
+    }
+    if let Some(swap) = report.swaps.iter().find(|s| s.outcome != "done") {
+        return Err(CliError::Failed(format!(
+            "swap of {} to {} {}",
+            swap.process, swap.variant, swap.outcome
         )));
     }
     if report.trial.success {
@@ -578,6 +616,19 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
         );
     }
     crate::faults::print_faults(&report.faults_injected, &report.safe_stops);
+    for s in &report.swaps {
+        println!(
+            "swap {} -> {} at {:.1} s: {}; pid {} -> {}; command gap {:.2} ms at base speed {:.2} m/s",
+            s.process,
+            s.variant,
+            s.requested_at_s,
+            s.outcome,
+            s.old_pid,
+            s.new_pid,
+            s.command_gap_ms,
+            s.base_speed
+        );
+    }
     Ok(())
 }
 

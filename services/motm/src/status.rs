@@ -54,11 +54,13 @@ pub struct StatusRow {
 
 /// The prefix to look at: flag, environment, or the single running `motm run`.
 fn prefix(args: &StatusArgs) -> Result<String, CliError> {
-    if let Some(p) = args
-        .prefix
-        .clone()
-        .or_else(|| std::env::var(motm_bus::PREFIX_ENV).ok())
-    {
+    stack_prefix(args.prefix.clone())
+}
+
+/// The iceoryx2 prefix of the stack to talk to: `explicit` (a `--prefix` flag), else
+/// `$MOTM_IPC_PREFIX`, else the one stack that `motm run` is running.
+pub fn stack_prefix(explicit: Option<String>) -> Result<String, CliError> {
+    if let Some(p) = explicit.or_else(|| std::env::var(motm_bus::PREFIX_ENV).ok()) {
         return Ok(p);
     }
     let live: Vec<String> = std::fs::read_dir(registry_dir())

@@ -12,6 +12,7 @@ use motm_core::stack::resolver::{
 };
 use motm_msgs as msgs;
 use motm_msgs::services;
+use motm_wire::controllers::ControllerLatest;
 use motm_wire::inputs::ControlInputs;
 use motm_wire::{ServiceArgs, ServiceSetup, convert, exit_on_error, report_exit};
 
@@ -60,8 +61,9 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
     let qos = Qos::default();
     let mut inputs = ControlInputs::open(&bus, setup.config.mission.run_out_distance)?;
     let mut reach = Latest::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
+    // Newest twist per controller: during a hot swap old and new publish side by side.
     let mut final_twist =
-        Latest::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
+        ControllerLatest::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
     let mut active =
         Latest::<msgs::ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)?;
     let mut base_target =
@@ -101,7 +103,7 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
                 .unwrap_or_else(|| motm_core::TargetEstimate::fixed(Default::default())),
             reach: reach.get().and_then(|m| convert::twist_sample(m, now)),
             final_twist: final_twist
-                .get()
+                .get(active.get().map(|m| m.controller_id))
                 .and_then(|m| convert::twist_sample(m, now)),
             active_controller: active.get().map(|m| m.controller_id),
             base_target: base_target.get().map(|m| {

@@ -42,6 +42,9 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
         Latest::<msgs::BaseVelocityCommand>::new(&bus, services::BASE_VELOCITY_TARGET, &qos)?;
     let mut final_twists =
         Subscriber::<msgs::TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos)?;
+    // During a hot swap two final-phase controllers publish: follow the active one only.
+    let mut active =
+        Latest::<msgs::ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)?;
     let mut twist_out =
         Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
     let mut reacher = ReacherCycle::new(setup.robot.clone(), setup.config.clone(), setup.dt());
@@ -59,8 +62,13 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
             while let Ok(Some(_)) = final_twists.receive() {}
             return Flow::Continue;
         };
+        let _ = active.update();
+        let active_id = active.get().map(|a| a.controller_id);
         while let Ok(Some(m)) = final_twists.receive() {
-            if mission.phase == Phase::Final && m.task_index as usize == mission.task_index {
+            if mission.phase == Phase::Final
+                && m.task_index as usize == mission.task_index
+                && active_id.is_none_or(|id| id == m.controller_id)
+            {
                 reacher.follow(Twist::from(m.twist));
             }
         }

@@ -6,6 +6,7 @@
 pub mod binaries;
 pub mod process_table;
 pub mod stack;
+pub mod swap;
 
 pub use motm_sim::scenario_path;
 pub use process_table::{LaunchSpec, ProcessTable, TableEvent};

@@ -18,7 +18,9 @@ use motm_msgs::{
     BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TwistCommand, services,
 };
 use motm_sim::Scenario;
+use motm_supervisor::swap::SwapDriver;
 use motm_supervisor::{LaunchContext, LaunchSpec, ProcessTable, StackConfig, TableEvent, binaries};
+use motm_wire::controllers::ControllerLatest;
 use motm_wire::convert;
 use nalgebra::Vector3;
 
@@ -53,6 +55,14 @@ struct Args {
     /// Only manage the processes; publish no mission.
     #[arg(long)]
     no_mission: bool,
+    /// Start no process: something else runs them (systemd units, see deploy/); the
+    /// supervisor runs the mission only, and hot swaps are refused.
+    #[arg(long)]
+    no_spawn: bool,
+    /// Print each process's name and expanded arguments (`name<TAB>args`, one per line) and
+    /// exit; deploy/install.sh writes the systemd units' argument files from it.
+    #[arg(long)]
+    print_launch: bool,
 }
 
 /// Everything the supervisor needs, checked before anything starts.
@@ -82,7 +92,8 @@ fn setup(args: &Args) -> Result<Setup, String> {
         None => binaries::own_dir().map_err(|e| format!("cannot find own executable: {e}"))?,
     };
     let missing = binaries::missing(&bin_dir, stack.processes.iter().map(|p| p.name.as_str()));
-    if !missing.is_empty() {
+    // Without spawning, the binaries may live elsewhere (or not be installed, like sim-world).
+    if !missing.is_empty() && !args.no_spawn && !args.print_launch {
         return Err(format!(
             "service binaries missing in {}: {}",
             bin_dir.display(),
@@ -165,7 +176,7 @@ struct MissionPorts {
     joints: Latest<JointState>,
     odometry: Latest<BaseOdometry>,
     target: Latest<motm_msgs::TargetEstimate>,
-    final_twist: Latest<TwistCommand>,
+    final_twist: ControllerLatest<TwistCommand>,
     state: Publisher<MissionState>,
     /// When the current task started, ns: older perception estimates belong to another object.
     task_started_ns: u64,
@@ -178,14 +189,15 @@ impl MissionPorts {
             joints: Latest::new(bus, services::ARM_JOINT_STATE, &qos)?,
             odometry: Latest::new(bus, services::BASE_ODOMETRY, &qos)?,
             target: Latest::new(bus, services::PERCEPTION_TARGET, &qos)?,
-            final_twist: Latest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
+            final_twist: ControllerLatest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
             state: Publisher::new(bus, services::MISSION_STATE, &qos)?,
             task_started_ns: now_ns,
         })
     }
 
-    /// One mission cycle at `now_ns`: read, step, publish.
-    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64) {
+    /// One mission cycle at `now_ns`: read, step, publish. Task progress is taken from the
+    /// `active` final-phase controller (any, until a hot swap names one).
+    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64, active: Option<u32>) {
         // A failed read leaves the previous value, which the stamps guard.
         let _ = self.joints.update();
         let _ = self.odometry.update();
@@ -199,7 +211,7 @@ impl MissionPorts {
                     .map(convert::perceived)
                     .filter(|p| p.stamp_ns >= self.task_started_ns)
                     .map(|p| p.estimate);
-                let final_progress = self.final_twist.get().and_then(|m| {
+                let final_progress = self.final_twist.get(active).and_then(|m| {
                     Some(FinalProgress {
                         task_index: m.task_index as usize,
                         progress: convert::progress(m)?,
@@ -266,10 +278,14 @@ fn run(setup: Setup) -> Result<(), String> {
         }
         None => None,
     };
+    // Every port is open before the first child starts (and before the first status says so).
+    let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0);
+    let mut swap = SwapDriver::new(&bus, stack.hot_swap, (1e9 / control_rate_hz) as u64, grace)
+        .map_err(|e| e.to_string())?;
     let mut table = ProcessTable::new(specs, stack.restart, ipc);
     // The mission state is on the bus before the controllers start.
     if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-        ports.cycle(tracker, motm_bus::monotonic_now_ns());
+        ports.cycle(tracker, motm_bus::monotonic_now_ns(), None);
     }
     log(&table.start_all(motm_bus::monotonic_now_ns()));
     let _ = status.publish(table.status());
@@ -279,29 +295,44 @@ fn run(setup: Setup) -> Result<(), String> {
     let exit = service.run_periodic(|cycle| {
         let events = table.poll(cycle.now_ns);
         log(&events);
+        let base_speed = ports
+            .as_ref()
+            .and_then(|p| p.odometry.get())
+            .map_or(0.0, |o| o.v);
+        let swapped = swap.poll(&mut table, cycle.now_ns, base_speed);
         if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-            ports.cycle(tracker, cycle.now_ns);
+            ports.cycle(tracker, cycle.now_ns, swap.active_id());
         }
-        if !events.is_empty() || cycle.cycle % status_every == 0 {
+        if swapped || !events.is_empty() || cycle.cycle % status_every == 0 {
             let _ = status.publish(table.status());
         }
         Flow::Continue
     });
     eprintln!("supervisor: stopping the stack");
-    log(&table.shutdown(Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0)));
+    swap.shutdown();
+    log(&table.shutdown(grace));
     let _ = status.publish(table.status());
     exit.map(|_| ()).map_err(|e| e.to_string())
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let setup = match setup(&args) {
+    let mut setup = match setup(&args) {
         Ok(setup) => setup,
         Err(e) => {
             eprintln!("supervisor: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
+    if args.print_launch {
+        for spec in &setup.specs {
+            println!("{}\t{}", spec.name, spec.args.join(" "));
+        }
+        return ExitCode::SUCCESS;
+    }
+    if args.no_spawn {
+        setup.specs.clear();
+    }
     match run(setup) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

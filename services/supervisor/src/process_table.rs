@@ -268,6 +268,36 @@ impl ProcessTable {
         status
     }
 
+    /// How the named process is launched (after a hot swap: the new variant's arguments).
+    pub fn spec(&self, name: &str) -> Option<&LaunchSpec> {
+        self.entry(name).map(|e| &e.spec)
+    }
+
+    /// Hot swap: makes the running `child`, started from `spec` at `started_ns`, the named
+    /// process's instance (not counted as a restart), so that from now on the table reaps it and restarts it (from `spec`) when it dies.
+    /// Returns the previous instance, which the table no longer watches: the caller stops and
+    /// reaps it. `None` (and `child` is handed back) when the name is unknown or the table
+    /// is shutting down.
+    pub fn adopt(
+        &mut self,
+        name: &str,
+        spec: LaunchSpec,
+        child: Child,
+        started_ns: u64,
+    ) -> Result<Option<Child>, Child> {
+        if self.shutting_down {
+            return Err(child);
+        }
+        let Some(entry) = self.entries.iter_mut().find(|e| e.spec.name == name) else {
+            return Err(child);
+        };
+        entry.spec = spec;
+        entry.backoff.started(started_ns, false);
+        entry.state = SupervisedState::Running;
+        entry.restart_at_ns = None;
+        Ok(entry.child.replace(child))
+    }
+
     fn entry(&self, name: &str) -> Option<&Entry> {
         self.entries.iter().find(|e| e.spec.name == name)
     }
@@ -275,26 +305,7 @@ impl ProcessTable {
     /// Spawns entry `index`.
     fn spawn(&mut self, index: usize, now_ns: u64, restart: bool, events: &mut Vec<TableEvent>) {
         let entry = &mut self.entries[index];
-        let parent = std::process::id() as libc::pid_t;
-        let mut command = Command::new(&entry.spec.program);
-        command.args(&entry.spec.args);
-        command.envs(entry.spec.env.iter().map(|(k, v)| (k, v)));
-        // SAFETY: only async-signal-safe calls (setpgid, prctl, getppid) between fork and exec.
-        unsafe {
-            command.pre_exec(move || {
-                if libc::setpgid(0, 0) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                // The supervisor died before the death signal was armed.
-                if libc::getppid() != parent {
-                    return Err(std::io::Error::other("supervisor exited"));
-                }
-                Ok(())
-            });
-        }
+        let mut command = child_command(&entry.spec);
         entry.backoff.started(now_ns, restart);
         match command.spawn() {
             Ok(child) => {
@@ -351,8 +362,39 @@ impl Drop for ProcessTable {
     }
 }
 
+/// The command that starts a supervised child from `spec`: its own process group (a Ctrl-C on
+/// the terminal reaches only the supervisor), SIGTERM when the supervisor dies, and none of
+/// the supervisor's systemd notification variables.
+pub fn child_command(spec: &LaunchSpec) -> Command {
+    let parent = std::process::id() as libc::pid_t;
+    let mut command = Command::new(&spec.program);
+    command.args(&spec.args);
+    command.envs(spec.env.iter().map(|(k, v)| (k, v)));
+    // The supervisor's own systemd notification socket and watchdog are not the children's.
+    for var in ["NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID"] {
+        command.env_remove(var);
+    }
+    // SAFETY: only async-signal-safe calls (setpgid, prctl, getppid) between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::setpgid(0, 0) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The supervisor died before the death signal was armed.
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("supervisor exited"));
+            }
+            Ok(())
+        });
+    }
+    command
+}
+
 /// Sends `sig` to `pid` (errors ignored: the process may just have exited).
-fn signal(pid: u32, sig: libc::c_int) {
+pub fn signal(pid: u32, sig: libc::c_int) {
     // SAFETY: kill(2) has no memory-safety preconditions.
     unsafe {
         libc::kill(pid as libc::pid_t, sig);

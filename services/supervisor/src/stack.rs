@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use motm_core::ModelError;
+use motm_core::hot_swap::HotSwapConfig;
 use motm_core::restart_policy::RestartPolicy;
 use motm_core::watchdog::WatchdogConfig;
 use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
@@ -79,6 +80,9 @@ pub struct StackConfig {
     /// Watchdog settings.
     #[serde(default)]
     pub watchdog: WatchdogConfig,
+    /// Hot-swap timeouts and gap measurement (`[hot_swap]`).
+    #[serde(default)]
+    pub hot_swap: HotSwapConfig,
     /// The processes, in start order (stopped in reverse order).
     #[serde(rename = "process")]
     pub processes: Vec<ProcessConfig>,
@@ -145,6 +149,9 @@ impl StackConfig {
         self.watchdog
             .validate()
             .map_err(|(key, message)| invalid(format!("watchdog.{key}"), message))?;
+        self.hot_swap
+            .validate()
+            .map_err(|(key, message)| invalid(format!("hot_swap.{key}"), message))?;
         if self.processes.is_empty() || self.processes.len() > MAX_SUPERVISED_PROCESSES {
             return Err(invalid(
                 "process".into(),
@@ -381,6 +388,10 @@ mod tests {
             (
                 "control_rate_hz = 0.0\n[[process]]\nname = \"a\"\n",
                 "control_rate_hz",
+            ),
+            (
+                "[hot_swap]\ngap_window_periods = 0\n[[process]]\nname = \"a\"\n",
+                "hot_swap.gap_window_periods",
             ),
         ];
         for (text, key) in cases {

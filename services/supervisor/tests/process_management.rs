@@ -309,3 +309,66 @@ fn children_do_not_outlive_a_killed_supervisor() {
     assert_clean(&ipc);
     let _ = std::fs::remove_dir_all(stack.parent().unwrap());
 }
+
+#[test]
+fn a_hot_swapped_instance_is_owned_and_restarted_with_its_own_arguments_the_old_one_never() {
+    let ipc = ipc("adopt");
+    {
+        let observer = Bus::open_with("observer", &ipc).unwrap();
+        let mut table = ProcessTable::new(
+            vec![probe("swapped", &ipc, &["--rate", "100"])],
+            RestartPolicy::default(),
+            ipc.clone(),
+        );
+        table.start_all(now_ns());
+        let old = table.pid("swapped").unwrap();
+        wait_heartbeat(&observer, "swapped", old);
+        // The new instance runs beside the old one (same name, another argument), then the
+        // table adopts it and hands the old one back.
+        let new_spec = probe("swapped", &ipc, &["--rate", "50"]);
+        let child = motm_supervisor::process_table::child_command(&new_spec)
+            .spawn()
+            .unwrap();
+        let new = child.id();
+        wait_heartbeat(&observer, "swapped", new);
+        let mut previous = table
+            .adopt("swapped", new_spec, child, now_ns())
+            .unwrap()
+            .expect("the old instance");
+        assert_eq!(previous.id(), old);
+        assert_eq!(table.pid("swapped"), Some(new));
+        assert_eq!(table.restarts("swapped"), Some(0));
+        // The old instance dies: the table no longer watches it, so nothing is restarted.
+        // SAFETY: kill(2) on our own child.
+        assert_eq!(unsafe { libc::kill(old as i32, libc::SIGKILL) }, 0);
+        previous.wait().unwrap();
+        for _ in 0..20 {
+            assert_eq!(table.poll(now_ns()), Vec::new());
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(table.pid("swapped"), Some(new));
+        // The new instance dies: it is restarted, from its own arguments.
+        // SAFETY: kill(2) on our own child.
+        assert_eq!(unsafe { libc::kill(new as i32, libc::SIGKILL) }, 0);
+        wait_for("the restart of the swapped-in instance", || {
+            table.poll(now_ns());
+            table.pid("swapped").is_some_and(|p| p != new)
+        });
+        let restarted = table.pid("swapped").unwrap();
+        let cmdline = std::fs::read(format!("/proc/{restarted}/cmdline")).unwrap();
+        let args: Vec<String> = cmdline
+            .split(|&b| b == 0)
+            .map(|a| String::from_utf8_lossy(a).into_owned())
+            .collect();
+        assert!(
+            args.windows(2).any(|w| w[0] == "--rate" && w[1] == "50"),
+            "{args:?}"
+        );
+        assert_eq!(table.restarts("swapped"), Some(1));
+        table.shutdown(Duration::from_secs(5));
+        for pid in [old, new, restarted] {
+            assert!(!alive(pid), "pid {pid} outlived the shutdown");
+        }
+    }
+    assert_clean(&ipc);
+}

@@ -39,6 +39,7 @@ mod ports;
 mod process;
 mod service_loop;
 mod stats;
+mod systemd;
 
 pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
 pub use clock::monotonic_now_ns;
@@ -47,6 +48,7 @@ pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};
 pub use process::OwnedProcess;
 pub use service_loop::{CycleContext, Flow, LoopConfig, LoopExit, ServiceLoop};
 pub use stats::{CycleStats, percentile};
+pub use systemd::SystemdNotifier;
 
 use std::cell::{Cell, RefCell};
 use std::rc::{Rc, Weak};
@@ -106,6 +108,14 @@ pub enum BusError {
     /// The WaitSet failed.
     #[error("service loop failed: {0}")]
     Loop(String),
+    /// The iceoryx2 config file could not be read.
+    #[error("{file}: cannot read the iceoryx2 config: {detail}")]
+    Config {
+        /// The file.
+        file: String,
+        /// Why.
+        detail: String,
+    },
 }
 
 /// Which set of iceoryx2 resources a process uses. Processes with different prefixes never see
@@ -133,9 +143,20 @@ impl IpcConfig {
         }
     }
 
-    /// The iceoryx2 configuration: the global one with this prefix.
+    /// The iceoryx2 configuration with this prefix: the file named by
+    /// [`ICEORYX2_CONFIG_ENV`] when set, else iceoryx2's global one (which is read from
+    /// `./config/iceoryx2.toml`, the user's or the system's iceoryx2 config when present).
     pub fn iceoryx2(&self) -> Result<Config, BusError> {
-        let mut config = Config::global_config().clone();
+        let file = std::env::var_os(ICEORYX2_CONFIG_ENV).map(std::path::PathBuf::from);
+        self.iceoryx2_from(file.as_deref())
+    }
+
+    /// The iceoryx2 configuration with this prefix, read from `file` (`None`: the global one).
+    pub fn iceoryx2_from(&self, file: Option<&std::path::Path>) -> Result<Config, BusError> {
+        let mut config = match file {
+            Some(path) => load_iceoryx2_config(path)?,
+            None => Config::global_config().clone(),
+        };
         config.global.prefix =
             FileName::new(self.prefix.as_bytes()).map_err(|e| BusError::InvalidPrefix {
                 prefix: self.prefix.clone(),
@@ -143,6 +164,21 @@ impl IpcConfig {
             })?;
         Ok(config)
     }
+}
+
+/// Environment variable naming the iceoryx2 config file every process of a stack reads (see
+/// `config/iceoryx2.toml`); without it iceoryx2's own lookup applies.
+pub const ICEORYX2_CONFIG_ENV: &str = "MOTM_ICEORYX2_CONFIG";
+
+/// Reads an iceoryx2 config file; the error names the file.
+fn load_iceoryx2_config(path: &std::path::Path) -> Result<Config, BusError> {
+    let error = |detail: String| BusError::Config {
+        file: path.display().to_string(),
+        detail,
+    };
+    let name = FilePath::new(path.as_os_str().as_encoded_bytes())
+        .map_err(|e| error(format!("not a valid file path: {e:?}")))?;
+    Config::from_file(&name).map_err(|e| error(e.to_string()))
 }
 
 /// Something whose connections to remote ports can be refreshed.

@@ -7,7 +7,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use motm_msgs::ProcessState;
 
-use crate::{Bus, BusError, CycleStats, HeartbeatPublisher, Trigger, monotonic_now_ns};
+use crate::{
+    Bus, BusError, CycleStats, HeartbeatPublisher, SystemdNotifier, Trigger, monotonic_now_ns,
+};
 
 /// Timing of a [`ServiceLoop`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -132,6 +134,7 @@ pub struct ServiceLoop<'bus> {
     last_tick: Option<LastTick>,
     last_heartbeat_ns: u64,
     last_refresh_ns: u64,
+    systemd: SystemdNotifier,
 }
 
 impl<'bus> ServiceLoop<'bus> {
@@ -150,7 +153,13 @@ impl<'bus> ServiceLoop<'bus> {
             last_tick: None,
             last_heartbeat_ns: now,
             last_refresh_ns: now,
+            systemd: SystemdNotifier::from_env(),
         })
+    }
+
+    /// The systemd notification state (`READY=1` and `WATCHDOG=1` after completed cycles).
+    pub fn systemd(&self) -> &SystemdNotifier {
+        &self.systemd
     }
 
     /// Cycle statistics so far.
@@ -257,6 +266,7 @@ impl<'bus> ServiceLoop<'bus> {
         );
         self.last_tick = tick;
         self.stats.record(end - wake, missed, end);
+        self.systemd.iteration_done(end);
         self.housekeeping(end, schedule.map_or(0, |s| s.period_ns));
         flow
     }
@@ -294,6 +304,7 @@ impl<'bus> ServiceLoop<'bus> {
                 LoopExit::Stopped
             }
         };
+        self.systemd.stopping();
         self.heartbeat.publish(
             ProcessState::Stopping,
             &mut self.stats,

@@ -39,6 +39,7 @@ pub mod error;
 pub mod fault_schedule;
 pub mod final_phase;
 pub mod holistic;
+pub mod hot_swap;
 pub mod input_check;
 pub mod kinematics;
 pub mod mission;

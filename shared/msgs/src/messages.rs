@@ -955,3 +955,6 @@ message!(DriverStatus, |m, c| {
 
 mod supervision;
 pub use supervision::*;
+
+mod swap;
+pub use swap::*;

@@ -142,3 +142,8 @@ mod hardware_and_driver_tests {
         assert_eq!(names.len(), before);
     }
 }
+
+/// Hot-swap requests to the supervisor ([`crate::SwapRequest`]).
+pub const SUPERVISOR_SWAP_REQUEST: &str = "motm/v1/supervisor/swap_request";
+/// The supervisor's hot-swap reports ([`crate::SwapStatus`]).
+pub const SUPERVISOR_SWAP_STATUS: &str = "motm/v1/supervisor/swap_status";

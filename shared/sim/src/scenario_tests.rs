@@ -70,6 +70,7 @@ fn every_shipped_scenario_loads() {
     names.sort();
     let expected = [
         "button",
+        "button-swap",
         "exp1-dynamic",
         "exp1-static",
         "exp2",

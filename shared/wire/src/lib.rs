@@ -11,13 +11,14 @@
 //! | --- | --- | --- |
 //! | perception | `CAMERA_IMAGE`, `ARM_JOINT_STATE` (queued), `BASE_ODOMETRY`, `MISSION_STATE` | `PERCEPTION_TARGET` (held estimate of the current pick, with `image_stamp_ns`) |
 //! | base-planner | `BASE_ODOMETRY`, `MISSION_STATE`, `PERCEPTION_TARGET` | `BASE_VELOCITY_TARGET`, `BASE_PLAN` (t_R, range-entry pose, closest approach, task index) |
-//! | reacher | `ARM_JOINT_STATE`, `BASE_ODOMETRY`, `MISSION_STATE`, `PERCEPTION_TARGET`, `BASE_PLAN`, `BASE_VELOCITY_TARGET`, `CONTROL_FINAL_TWIST` | `CONTROL_REACH_TWIST` (controller id 0) |
+//! | reacher | `ARM_JOINT_STATE`, `BASE_ODOMETRY`, `MISSION_STATE`, `PERCEPTION_TARGET`, `BASE_PLAN`, `BASE_VELOCITY_TARGET`, `CONTROL_FINAL_TWIST` (of the active controller, `CONTROL_ACTIVE_CONTROLLER`) | `CONTROL_REACH_TWIST` (controller id 0) |
 //! | final-phase | `ARM_JOINT_STATE`, `BASE_ODOMETRY`, `MISSION_STATE`, `PERCEPTION_TARGET`, `ARM_GRIPPER_STATE` | `CONTROL_FINAL_TWIST` (with task index and progress), `ARM_GRIPPER_COMMAND` |
 //! | qp-resolver | `ARM_JOINT_STATE`, `BASE_ODOMETRY`, `MISSION_STATE`, `PERCEPTION_TARGET`, `CONTROL_REACH_TWIST`, `CONTROL_FINAL_TWIST`, `CONTROL_ACTIVE_CONTROLLER`, `BASE_VELOCITY_TARGET` | `ARM_VELOCITY_COMMAND`, `BASE_VELOCITY_COMMAND`, `CONTROL_QP_STATUS` |
 //!
 //! The final phase reports its task as done with `TwistCommand::progress == Done` (and the
 //! task's index); the mission's supervisor advances on that.
 
+pub mod controllers;
 pub mod convert;
 pub mod inputs;
 pub mod setup;

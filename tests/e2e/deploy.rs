@@ -1,0 +1,95 @@
+//! The systemd deployment: `deploy/install.sh` installs into a scratch folder, and
+//! `systemd-analyze verify` accepts every installed unit (the template for each process with
+//! its drop-ins, and `motm.target`) without a warning. Skipped, with a message, where
+//! `systemd-analyze` is not available.
+
+use std::path::Path;
+use std::process::Command;
+
+use motm_e2e::{stack_bin_dir, workspace_root};
+
+/// Runs `systemd-analyze verify <unit>` with `units` searched first; returns (success, output).
+fn verify(units: &Path, unit: &str) -> (bool, String) {
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(units.join(unit))
+        .env("SYSTEMD_UNIT_PATH", format!("{}:", units.display()))
+        .output()
+        .expect("systemd-analyze");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+#[test]
+fn installed_units_pass_systemd_analyze_verify() {
+    if Command::new("systemd-analyze")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("skipped: systemd-analyze is not available on this machine");
+        return;
+    }
+    let root = std::env::temp_dir().join(format!("motm-deploy-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let bin = stack_bin_dir();
+    let status = Command::new("bash")
+        .arg(workspace_root().join("deploy/install.sh"))
+        .args(["--prefix", &root.join("opt").display().to_string()])
+        .args(["--confdir", &root.join("etc").display().to_string()])
+        .args(["--unitdir", &root.join("units").display().to_string()])
+        .args(["--bin-dir", &bin.display().to_string()])
+        .args(["--no-user", "--no-enable", "--link"])
+        .status()
+        .expect("bash deploy/install.sh");
+    assert!(status.success(), "install.sh failed");
+    let units = root.join("units");
+    let template = std::fs::read_to_string(units.join("motm@.service")).unwrap();
+    for key in [
+        "Type=notify",
+        "WatchdogSec=",
+        "Restart=on-failure",
+        "RemoveIPC=no",
+        "User=motm",
+    ] {
+        assert!(template.contains(key), "motm@.service lacks {key}");
+    }
+    // One argument file per process; the supervisor only runs the mission under systemd.
+    let mut instances: Vec<String> = std::fs::read_dir(root.join("etc/env"))
+        .unwrap()
+        .map(|e| {
+            let name = e.unwrap().file_name().to_string_lossy().into_owned();
+            name.trim_end_matches(".env").to_owned()
+        })
+        .collect();
+    instances.sort();
+    for name in [
+        "panda-driver",
+        "qp-resolver",
+        "final-phase",
+        "supervisor",
+        "watchdog",
+    ] {
+        assert!(instances.iter().any(|i| i == name), "{name}: {instances:?}");
+    }
+    let supervisor = std::fs::read_to_string(root.join("etc/env/supervisor.env")).unwrap();
+    assert!(supervisor.contains("--no-spawn"), "{supervisor}");
+    for instance in &instances {
+        let (ok, output) = verify(&units, &format!("motm@{instance}.service"));
+        assert!(ok && output.trim().is_empty(), "motm@{instance}: {output}");
+    }
+    let (ok, output) = verify(&units, "motm.target");
+    assert!(ok && output.trim().is_empty(), "motm.target: {output}");
+
+    // The check is not vacuous: a misspelt key in a drop-in is reported.
+    let dropin = units.join("motm@qp-resolver.service.d/realtime.conf");
+    let text = std::fs::read_to_string(&dropin).unwrap();
+    std::fs::write(&dropin, text.replace("WatchdogSec=", "WatchdogSecs=")).unwrap();
+    let (_, output) = verify(&units, "motm@qp-resolver.service");
+    assert!(output.contains("WatchdogSecs"), "{output}");
+    let _ = std::fs::remove_dir_all(&root);
+}
