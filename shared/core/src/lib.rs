@@ -28,6 +28,7 @@
 //! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
 //! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
 //! - [`error`]: errors that name the file and element at fault.
+//! - [`facing`]: which arm joint the MotM facing term turns toward the gripper.
 
 pub mod base_controller;
 pub mod camera;
@@ -35,6 +36,7 @@ pub mod chain;
 pub mod command_limiter;
 pub mod config_dir;
 pub mod error;
+pub mod facing;
 pub mod final_phase;
 pub mod holistic;
 pub mod input_check;

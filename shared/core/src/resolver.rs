@@ -45,6 +45,7 @@ use nalgebra::{DVector, Matrix6xX, Vector3, Vector6};
 use serde::Deserialize;
 
 use crate::chain::JointLimits;
+use crate::facing::FacingJoint;
 use crate::robot::{BASE_JOINTS, Robot};
 use crate::types::{BaseVelocity, Twist, wrap_angle};
 
@@ -122,6 +123,14 @@ pub enum Facing {
     Base {
         /// Tool position in the mobile base frame.
         tool_in_base: Vector3<f64>,
+    },
+    /// MotM for any arm: keep the arm's facing joint ([`crate::facing::FacingJoint`]) turned
+    /// toward the gripper, `c[arm_index] = −k_ε · error`.
+    ArmJoint {
+        /// Index of the facing joint among the arm joints.
+        arm_index: usize,
+        /// Facing error, rad ([`crate::facing::FacingJoint::error`]).
+        error: f64,
     },
 }
 
@@ -246,6 +255,8 @@ pub struct RedundancyResolver {
     lower: Vec<f64>,
     upper: Vec<f64>,
     errors: u64,
+    /// The robot's facing joint, when the resolver was made for a robot.
+    facing_joint: Option<FacingJoint>,
 }
 
 impl std::fmt::Debug for RedundancyResolver {
@@ -266,7 +277,9 @@ const SLACK_COLUMN_NNZ: usize = 3;
 impl RedundancyResolver {
     /// A resolver for `robot` (all joints, base first), with the model's velocity limits.
     pub fn for_robot(robot: &Robot, config: ResolverConfig) -> Self {
-        Self::new(&robot.limits(), config)
+        let mut resolver = Self::new(&robot.limits(), config);
+        resolver.facing_joint = FacingJoint::from_robot(robot);
+        resolver
     }
 
     /// A resolver for joints with these `limits` (base ω, base v, then the arm).
@@ -342,6 +355,7 @@ impl RedundancyResolver {
             lower: vec![0.0; vars],
             upper: vec![0.0; vars],
             errors: 0,
+            facing_joint: None,
         }
     }
 
@@ -399,6 +413,7 @@ impl RedundancyResolver {
             Facing::None => true,
             Facing::ArmJoint1 { tool_in_arm_base } => finite(tool_in_arm_base.iter()),
             Facing::Base { tool_in_base } => finite(tool_in_base.iter()),
+            Facing::ArmJoint { arm_index, error } => arm_index < arm_dof && error.is_finite(),
         };
         let base_ok = input
             .base_velocity_target
@@ -480,6 +495,9 @@ impl RedundancyResolver {
             Facing::Base { tool_in_base: p } => {
                 self.linear[BASE_OMEGA] += -cfg.facing_gain * p.y.atan2(p.x);
             }
+            Facing::ArmJoint { arm_index, error } => {
+                self.linear[BASE_JOINTS + arm_index] += -cfg.facing_gain * error;
+            }
         }
         if let Some(target) = input.base_velocity_target {
             let w = cfg.base_tracking_weight;
@@ -548,8 +566,8 @@ impl RedundancyResolver {
 
 /// The MotM cycle around [`RedundancyResolver::resolve`], from robot state to command.
 impl RedundancyResolver {
-    /// Computes kinematics, the arm's manipulability gradient and the arm-joint-1 facing term for
-    /// `robot` at `base`/`arm_q`, then resolves the world-frame `twist` with the base tracking
+    /// Computes kinematics, the arm's manipulability gradient and the facing term (the robot's
+    /// facing joint toward the gripper, [`FacingJoint`]) for `robot` at `base`/`arm_q`, then resolves the world-frame `twist` with the base tracking
     /// `base_velocity_target` (when given). `position_error` is `e_t`.
     pub fn resolve_motm(
         &mut self,
@@ -567,16 +585,20 @@ impl RedundancyResolver {
         let fk = robot.forward(base, arm_q);
         let (_, gradient) =
             crate::kinematics::manipulability_gradient(&Robot::arm_jacobian(&fk.jacobian));
-        let tool_in_arm_base = arm_base_frame(robot, base)
-            .inverse_transform_point(&fk.tool_pose.translation.vector.into())
-            .coords;
+        let facing = match self.facing_joint.or_else(|| FacingJoint::from_robot(robot)) {
+            Some(joint) => Facing::ArmJoint {
+                arm_index: joint.arm_index,
+                error: joint.error(robot, base, arm_q, &fk.tool_pose.translation.vector),
+            },
+            None => Facing::None,
+        };
         self.resolve(&ResolverInput {
             jacobian: &fk.jacobian,
             twist,
             arm_q,
             manipulability_gradient: &gradient,
             position_error,
-            facing: Facing::ArmJoint1 { tool_in_arm_base },
+            facing,
             base_velocity_target,
         })
     }
