@@ -88,7 +88,10 @@ fn zero_frame(robot: &Robot, arm_q: &[f64], arm_index: usize) -> Isometry3<f64> 
     for joint in &joints[..BASE_JOINTS] {
         frame = frame * joint.origin * joint.motion(0.0);
     }
-    for (joint, q) in joints[BASE_JOINTS..BASE_JOINTS + arm_index].iter().zip(arm_q) {
+    for (joint, q) in joints[BASE_JOINTS..BASE_JOINTS + arm_index]
+        .iter()
+        .zip(arm_q)
+    {
         frame = frame * joint.origin * joint.motion(*q);
     }
     frame * joints[BASE_JOINTS + arm_index].origin
@@ -106,7 +109,13 @@ mod tests {
     fn panda_faces_along_x_with_no_offset() {
         let frankie = robot("frankie");
         let facing = FacingJoint::from_robot(&frankie).expect("the Panda has a vertical joint 1");
-        assert_eq!(facing, FacingJoint { arm_index: 0, offset: 0.0 });
+        assert_eq!(
+            facing,
+            FacingJoint {
+                arm_index: 0,
+                offset: 0.0
+            }
+        );
     }
 
     #[test]
@@ -115,7 +124,10 @@ mod tests {
         let facing = FacingJoint::from_robot(&husky).expect("the UR5 has a vertical pan joint");
         assert_eq!(facing.arm_index, 0);
         // The pan points the arm along −x at zero; the shoulder offset tilts it a little.
-        assert!((facing.offset.abs() - std::f64::consts::PI).abs() < 0.4, "{facing:?}");
+        assert!(
+            (facing.offset.abs() - std::f64::consts::PI).abs() < 0.4,
+            "{facing:?}"
+        );
     }
 
     #[test]
