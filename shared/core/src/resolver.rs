@@ -67,6 +67,13 @@ pub struct ResolverConfig {
     pub min_position_error: f64,
     /// `k_m`: gain on the manipulability gradient in the linear cost. Holistic: 1.
     pub manipulability_gain: f64,
+    /// The manipulability threshold `k_m` is tuned for, 0.08 (the Panda's, the paper's). A
+    /// resolver made for a robot ([`RedundancyResolver::for_robot`]) scales the gradient term by
+    /// this over the robot's own `manipulability_threshold`, so an arm whose manipulability is
+    /// several times the Panda's (Fetch: threshold 0.28) is not pulled toward its most
+    /// manipulable pose several times harder than it follows the tool twist. Frankie's scale is
+    /// exactly 1.
+    pub manipulability_reference_threshold: f64,
     /// `k_ε`: gain of the facing term ([`Facing`]). 0.5.
     pub facing_gain: f64,
     /// `W`: weight of the soft base-velocity tracking rows. Chosen 1e4: ten times the largest
@@ -95,6 +102,7 @@ impl Default for ResolverConfig {
             joint_velocity_weight: 0.01,
             min_position_error: 1e-3,
             manipulability_gain: 1.0,
+            manipulability_reference_threshold: 0.08,
             facing_gain: 0.5,
             base_tracking_weight: 1e4,
             damper_stop_distance: 0.1,
@@ -257,6 +265,9 @@ pub struct RedundancyResolver {
     errors: u64,
     /// The robot's facing joint, when the resolver was made for a robot.
     facing_joint: Option<FacingJoint>,
+    /// Scale of the manipulability gradient term: the reference threshold over the robot's (1
+    /// when the resolver was not made for a robot).
+    manipulability_scale: f64,
 }
 
 impl std::fmt::Debug for RedundancyResolver {
@@ -279,6 +290,8 @@ impl RedundancyResolver {
     pub fn for_robot(robot: &Robot, config: ResolverConfig) -> Self {
         let mut resolver = Self::new(&robot.limits(), config);
         resolver.facing_joint = FacingJoint::from_robot(robot);
+        resolver.manipulability_scale = resolver.config.manipulability_reference_threshold
+            / robot.config.manipulability_threshold;
         resolver
     }
 
@@ -356,6 +369,7 @@ impl RedundancyResolver {
             upper: vec![0.0; vars],
             errors: 0,
             facing_joint: None,
+            manipulability_scale: 1.0,
         }
     }
 
@@ -482,7 +496,7 @@ impl RedundancyResolver {
             self.p_diag[k] = 1.0 / e_t;
         }
         for (k, g) in input.manipulability_gradient.iter().enumerate() {
-            self.linear[BASE_JOINTS + k] = -cfg.manipulability_gain * g;
+            self.linear[BASE_JOINTS + k] = -cfg.manipulability_gain * self.manipulability_scale * g;
         }
         match input.facing {
             Facing::None => {}
