@@ -633,3 +633,25 @@ pub fn arm_base_frame(
         None => frame,
     }
 }
+
+#[cfg(test)]
+mod robot_scale_tests {
+    use super::*;
+
+    fn resolver(name: &str) -> RedundancyResolver {
+        let robot = Robot::load(&crate::resolve_config_dir(None), name).expect("robot loads");
+        RedundancyResolver::for_robot(&robot, ResolverConfig::default())
+    }
+
+    #[test]
+    fn frankie_keeps_the_papers_manipulability_gain() {
+        assert_eq!(resolver("frankie").manipulability_scale, 1.0);
+    }
+
+    #[test]
+    fn an_arm_with_larger_manipulability_gets_a_smaller_gradient_weight() {
+        let fetch = resolver("fetch");
+        assert!((fetch.manipulability_scale - 0.08 / 0.28).abs() < 1e-12);
+        assert_eq!(fetch.facing_joint.map(|f| f.arm_index), Some(1));
+    }
+}
