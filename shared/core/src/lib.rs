@@ -29,6 +29,7 @@
 //! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
 //! - [`error`]: errors that name the file and element at fault.
 //! - [`fault_schedule`]: the `motm run --fault` schedule (kill, stop, NaN sample).
+//! - [`facing`]: which arm joint the MotM facing term turns toward the gripper.
 
 pub mod base_controller;
 pub mod camera;
@@ -37,6 +38,7 @@ pub mod command_limiter;
 pub mod config_dir;
 pub mod error;
 pub mod fault_schedule;
+pub mod facing;
 pub mod final_phase;
 pub mod holistic;
 pub mod hot_swap;

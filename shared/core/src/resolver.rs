@@ -45,6 +45,7 @@ use nalgebra::{DVector, Matrix6xX, Vector3, Vector6};
 use serde::Deserialize;
 
 use crate::chain::JointLimits;
+use crate::facing::FacingJoint;
 use crate::robot::{BASE_JOINTS, Robot};
 use crate::types::{BaseVelocity, Twist, wrap_angle};
 
@@ -66,6 +67,13 @@ pub struct ResolverConfig {
     pub min_position_error: f64,
     /// `k_m`: gain on the manipulability gradient in the linear cost. Holistic: 1.
     pub manipulability_gain: f64,
+    /// The manipulability threshold `k_m` is tuned for, 0.08 (the Panda's, the paper's). A
+    /// resolver made for a robot ([`RedundancyResolver::for_robot`]) scales the gradient term by
+    /// this over the robot's own `manipulability_threshold`, so an arm whose manipulability is
+    /// several times the Panda's (Fetch: threshold 0.28) is not pulled toward its most
+    /// manipulable pose several times harder than it follows the tool twist. Frankie's scale is
+    /// exactly 1.
+    pub manipulability_reference_threshold: f64,
     /// `k_ε`: gain of the facing term ([`Facing`]). 0.5.
     pub facing_gain: f64,
     /// `W`: weight of the soft base-velocity tracking rows. Chosen 1e4: ten times the largest
@@ -94,6 +102,7 @@ impl Default for ResolverConfig {
             joint_velocity_weight: 0.01,
             min_position_error: 1e-3,
             manipulability_gain: 1.0,
+            manipulability_reference_threshold: 0.08,
             facing_gain: 0.5,
             base_tracking_weight: 1e4,
             damper_stop_distance: 0.1,
@@ -122,6 +131,14 @@ pub enum Facing {
     Base {
         /// Tool position in the mobile base frame.
         tool_in_base: Vector3<f64>,
+    },
+    /// MotM for any arm: keep the arm's facing joint ([`crate::facing::FacingJoint`]) turned
+    /// toward the gripper, `c[arm_index] = −k_ε · error`.
+    ArmJoint {
+        /// Index of the facing joint among the arm joints.
+        arm_index: usize,
+        /// Facing error, rad ([`crate::facing::FacingJoint::error`]).
+        error: f64,
     },
 }
 
@@ -246,6 +263,11 @@ pub struct RedundancyResolver {
     lower: Vec<f64>,
     upper: Vec<f64>,
     errors: u64,
+    /// The robot's facing joint, when the resolver was made for a robot.
+    facing_joint: Option<FacingJoint>,
+    /// Scale of the manipulability gradient term: the reference threshold over the robot's (1
+    /// when the resolver was not made for a robot).
+    manipulability_scale: f64,
 }
 
 impl std::fmt::Debug for RedundancyResolver {
@@ -266,7 +288,11 @@ const SLACK_COLUMN_NNZ: usize = 3;
 impl RedundancyResolver {
     /// A resolver for `robot` (all joints, base first), with the model's velocity limits.
     pub fn for_robot(robot: &Robot, config: ResolverConfig) -> Self {
-        Self::new(&robot.limits(), config)
+        let mut resolver = Self::new(&robot.limits(), config);
+        resolver.facing_joint = FacingJoint::from_robot(robot);
+        resolver.manipulability_scale = resolver.config.manipulability_reference_threshold
+            / robot.config.manipulability_threshold;
+        resolver
     }
 
     /// A resolver for joints with these `limits` (base ω, base v, then the arm).
@@ -342,6 +368,8 @@ impl RedundancyResolver {
             lower: vec![0.0; vars],
             upper: vec![0.0; vars],
             errors: 0,
+            facing_joint: None,
+            manipulability_scale: 1.0,
         }
     }
 
@@ -399,6 +427,7 @@ impl RedundancyResolver {
             Facing::None => true,
             Facing::ArmJoint1 { tool_in_arm_base } => finite(tool_in_arm_base.iter()),
             Facing::Base { tool_in_base } => finite(tool_in_base.iter()),
+            Facing::ArmJoint { arm_index, error } => arm_index < arm_dof && error.is_finite(),
         };
         let base_ok = input
             .base_velocity_target
@@ -467,7 +496,7 @@ impl RedundancyResolver {
             self.p_diag[k] = 1.0 / e_t;
         }
         for (k, g) in input.manipulability_gradient.iter().enumerate() {
-            self.linear[BASE_JOINTS + k] = -cfg.manipulability_gain * g;
+            self.linear[BASE_JOINTS + k] = -cfg.manipulability_gain * self.manipulability_scale * g;
         }
         match input.facing {
             Facing::None => {}
@@ -479,6 +508,9 @@ impl RedundancyResolver {
             }
             Facing::Base { tool_in_base: p } => {
                 self.linear[BASE_OMEGA] += -cfg.facing_gain * p.y.atan2(p.x);
+            }
+            Facing::ArmJoint { arm_index, error } => {
+                self.linear[BASE_JOINTS + arm_index] += -cfg.facing_gain * error;
             }
         }
         if let Some(target) = input.base_velocity_target {
@@ -548,8 +580,8 @@ impl RedundancyResolver {
 
 /// The MotM cycle around [`RedundancyResolver::resolve`], from robot state to command.
 impl RedundancyResolver {
-    /// Computes kinematics, the arm's manipulability gradient and the arm-joint-1 facing term for
-    /// `robot` at `base`/`arm_q`, then resolves the world-frame `twist` with the base tracking
+    /// Computes kinematics, the arm's manipulability gradient and the facing term (the robot's
+    /// facing joint toward the gripper, [`FacingJoint`]) for `robot` at `base`/`arm_q`, then resolves the world-frame `twist` with the base tracking
     /// `base_velocity_target` (when given). `position_error` is `e_t`.
     pub fn resolve_motm(
         &mut self,
@@ -567,16 +599,20 @@ impl RedundancyResolver {
         let fk = robot.forward(base, arm_q);
         let (_, gradient) =
             crate::kinematics::manipulability_gradient(&Robot::arm_jacobian(&fk.jacobian));
-        let tool_in_arm_base = arm_base_frame(robot, base)
-            .inverse_transform_point(&fk.tool_pose.translation.vector.into())
-            .coords;
+        let facing = match self.facing_joint.or_else(|| FacingJoint::from_robot(robot)) {
+            Some(joint) => Facing::ArmJoint {
+                arm_index: joint.arm_index,
+                error: joint.error(robot, base, arm_q, &fk.tool_pose.translation.vector),
+            },
+            None => Facing::None,
+        };
         self.resolve(&ResolverInput {
             jacobian: &fk.jacobian,
             twist,
             arm_q,
             manipulability_gradient: &gradient,
             position_error,
-            facing: Facing::ArmJoint1 { tool_in_arm_base },
+            facing,
             base_velocity_target,
         })
     }
@@ -595,5 +631,27 @@ pub fn arm_base_frame(
     match robot.chain.joints.get(BASE_JOINTS) {
         Some(first_arm_joint) => frame * first_arm_joint.origin,
         None => frame,
+    }
+}
+
+#[cfg(test)]
+mod robot_scale_tests {
+    use super::*;
+
+    fn resolver(name: &str) -> RedundancyResolver {
+        let robot = Robot::load(&crate::resolve_config_dir(None), name).expect("robot loads");
+        RedundancyResolver::for_robot(&robot, ResolverConfig::default())
+    }
+
+    #[test]
+    fn frankie_keeps_the_papers_manipulability_gain() {
+        assert_eq!(resolver("frankie").manipulability_scale, 1.0);
+    }
+
+    #[test]
+    fn an_arm_with_larger_manipulability_gets_a_smaller_gradient_weight() {
+        let fetch = resolver("fetch");
+        assert!((fetch.manipulability_scale - 0.08 / 0.28).abs() < 1e-12);
+        assert_eq!(fetch.facing_joint.map(|f| f.arm_index), Some(1));
     }
 }
