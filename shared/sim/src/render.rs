@@ -135,41 +135,136 @@ struct Tile {
     y0: usize,
     x1: usize,
     y1: usize,
+    /// The cone that contains every ray of the tile.
+    cone: Cone,
+}
+
+impl Tile {
+    /// Whether a box inside `cone` may be seen by a pixel of this tile: the angle between the
+    /// two cone axes is at most the sum of the half-angles. Compared through cosines (no `acos`
+    /// per tile and box), with a small margin so rounding never drops a box the exact test keeps.
+    #[inline]
+    fn may_see(&self, cone: &Cone) -> bool {
+        let own = &self.cone;
+        own.half_angle + cone.half_angle >= std::f64::consts::PI
+            || own.axis.dot(&cone.axis)
+                >= own.cos_half * cone.cos_half - own.sin_half * cone.sin_half - 1e-9
+    }
+}
+
+/// A circular cone of directions from the camera: its axis (unit) and half-angle.
+#[derive(Debug, Clone, Copy)]
+struct Cone {
     axis: Vector3<f64>,
     half_angle: f64,
+    cos_half: f64,
+    sin_half: f64,
 }
+
+impl Cone {
+    fn new(axis: Vector3<f64>, half_angle: f64) -> Self {
+        Self {
+            axis,
+            half_angle,
+            cos_half: half_angle.cos(),
+            sin_half: half_angle.sin(),
+        }
+    }
+}
+
+/// Number of pixels handled together in the ray loops: one row of a tile.
+const LANES: usize = TILE;
+
+/// The camera-frame rays of one tile row, one array per coordinate (zero outside the image).
+struct RowRays<'a> {
+    x: &'a [f32; LANES],
+    y: &'a [f32; LANES],
+    z: &'a [f32; LANES],
+}
+
+/// The `LANES` values of `values` from `at` on.
+#[inline]
+fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
+    values[at..at + LANES]
+        .try_into()
+        .expect("rows are padded to whole tiles")
+}
+
+/// What each pixel of a tile row sees so far: distance and surface (index into the palette).
+struct RowHits {
+    depth: [f32; LANES],
+    surface: [u16; LANES],
+}
+
+/// Palette index of the background.
+const SURFACE_BACKGROUND: u16 = 0;
+/// Palette index of the floor.
+const SURFACE_FLOOR: u16 = 1;
+/// Palette index of the first face of the first box (each box has six).
+const SURFACE_FIRST_BOX: u16 = 2;
 
 /// A box prepared for one frame: its pose relative to the camera in f32.
 #[derive(Debug, Clone, Copy)]
 struct PreparedBox {
-    box_from_camera: Matrix3<f32>,
-    camera_in_box: Vector3<f32>,
-    half: Vector3<f32>,
-    /// Lit colour of the faces −x, +x, −y, +y, −z, +z.
-    faces: [[u8; 3]; 6],
+    /// Rows of the rotation from camera to box frame.
+    box_from_camera: [[f32; 3]; 3],
+    /// Slab bounds relative to the camera position, per axis: `−half − o` and `half − o`.
+    slab_low: [f32; 3],
+    slab_high: [f32; 3],
 }
 
 impl PreparedBox {
-    /// Distance along `ray` (camera frame, unit) to the box's surface and the face hit, if the
-    /// ray enters the box in front of the camera.
-    #[inline]
-    fn hit(&self, ray: &Vector3<f32>) -> Option<(f32, usize)> {
-        let d = self.box_from_camera * ray;
-        let o = self.camera_in_box;
-        let (mut near, mut far, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0);
-        for axis in 0..3 {
-            let inv = 1.0 / d[axis];
-            let t1 = (-self.half[axis] - o[axis]) * inv;
-            let t2 = (self.half[axis] - o[axis]) * inv;
-            let (lo, hi) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
-            if lo > near {
-                near = lo;
-                // Entering through the −face when travelling along +axis.
-                face = 2 * axis + usize::from(d[axis] < 0.0);
-            }
-            far = far.min(hi);
+    fn new(
+        box_from_camera: &Matrix3<f32>,
+        camera_in_box: &Vector3<f32>,
+        half: &Vector3<f32>,
+    ) -> Self {
+        Self {
+            box_from_camera: [0, 1, 2].map(|r| [0, 1, 2].map(|c| box_from_camera[(r, c)])),
+            slab_low: [0, 1, 2].map(|a| -half[a] - camera_in_box[a]),
+            slab_high: [0, 1, 2].map(|a| half[a] - camera_in_box[a]),
         }
-        (near <= far && near > 0.0).then_some((near, face))
+    }
+
+    /// Casts the rays of a tile row at the box (slab test), keeping the nearest surface per
+    /// pixel: a ray that enters the box in front of the camera, nearer than what the pixel saw
+    /// so far, sees the face it enters through (−x, +x, −y, +y, −z, +z are palette entries
+    /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
+    /// row) so that it compiles to SIMD.
+    #[inline]
+    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u16) {
+        let m = &self.box_from_camera;
+        let mut near = [f32::NEG_INFINITY; LANES];
+        let mut far = [f32::INFINITY; LANES];
+        let mut face = [0u16; LANES];
+        for axis in 0..3 {
+            let (low, high) = (self.slab_low[axis], self.slab_high[axis]);
+            let row = m[axis];
+            for k in 0..LANES {
+                let d = row[0] * rays.x[k] + row[1] * rays.y[k] + row[2] * rays.z[k];
+                let inv = 1.0 / d;
+                let t1 = low * inv;
+                let t2 = high * inv;
+                let ordered = t1 < t2;
+                let lo = if ordered { t1 } else { t2 };
+                let hi = if ordered { t2 } else { t1 };
+                let enters = lo > near[k];
+                near[k] = if enters { lo } else { near[k] };
+                let entry_face = 2 * axis as u16 + u16::from(d < 0.0);
+                face[k] = if enters { entry_face } else { face[k] };
+                // As f32::min: a NaN `hi` leaves `far` as it is.
+                far[k] = if hi < far[k] { hi } else { far[k] };
+            }
+        }
+        for k in 0..LANES {
+            let closer = near[k] <= far[k] && near[k] > 0.0 && near[k] < hits.depth[k];
+            hits.depth[k] = if closer { near[k] } else { hits.depth[k] };
+            hits.surface[k] = if closer {
+                first_face + face[k]
+            } else {
+                hits.surface[k]
+            };
+        }
     }
 }
 
@@ -177,8 +272,15 @@ impl PreparedBox {
 #[derive(Debug, Clone)]
 pub struct Renderer {
     model: CameraModel,
-    /// Camera-frame unit ray of every pixel; `None` outside the lens' image circle.
-    rays: Vec<Option<Vector3<f32>>>,
+    /// Row stride of the ray arrays: the width rounded up to whole tiles.
+    stride: usize,
+    /// Camera-frame unit ray of every pixel, one array per coordinate, `stride` per row; zero
+    /// outside the lens' image circle and in the padding.
+    ray_x: Vec<f32>,
+    ray_y: Vec<f32>,
+    ray_z: Vec<f32>,
+    /// Whether each pixel (row-major, `width` per row) is inside the image circle.
+    inside: Vec<bool>,
     tiles: Vec<Tile>,
     noise: NoiseTable,
 }
@@ -188,6 +290,7 @@ impl Renderer {
     /// channel of every pixel.
     pub fn new(model: CameraModel, pixel_noise_std: f64) -> Self {
         let (w, h) = (model.width as usize, model.height as usize);
+        let stride = w.div_ceil(TILE) * TILE;
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
             .map(|i| {
                 let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
@@ -196,6 +299,17 @@ impl Renderer {
                     .map(|r| r.into_inner().cast::<f32>())
             })
             .collect();
+        let (mut ray_x, mut ray_y, mut ray_z) = (
+            vec![0.0; stride * h],
+            vec![0.0; stride * h],
+            vec![0.0; stride * h],
+        );
+        for (i, ray) in rays.iter().enumerate() {
+            if let Some(r) = ray {
+                let at = (i / w) * stride + i % w;
+                (ray_x[at], ray_y[at], ray_z[at]) = (r.x, r.y, r.z);
+            }
+        }
         let mut tiles = Vec::new();
         for y0 in (0..h).step_by(TILE) {
             for x0 in (0..w).step_by(TILE) {
@@ -212,20 +326,23 @@ impl Renderer {
                 let half_angle = tile_rays()
                     .map(|r| r.dot(&axis).clamp(-1.0, 1.0).acos())
                     .fold(0.0, f64::max);
-                // Margin for f32 rounding of the rays.
                 tiles.push(Tile {
                     x0,
                     y0,
                     x1,
                     y1,
-                    axis,
-                    half_angle: half_angle + 1e-4,
+                    // Margin for f32 rounding of the rays.
+                    cone: Cone::new(axis, half_angle + 1e-4),
                 });
             }
         }
         Self {
             model,
-            rays,
+            stride,
+            ray_x,
+            ray_y,
+            ray_z,
+            inside: rays.iter().map(Option::is_some).collect(),
             tiles,
             noise: NoiseTable::new(pixel_noise_std),
         }
@@ -246,6 +363,17 @@ impl Renderer {
         let mut image = vec![0; self.model.width as usize * self.model.height as usize * 3];
         self.render_into(scene, world_from_camera, rng, &mut image);
         image
+    }
+
+    /// The camera-frame rays of the tile row starting at pixel (`x0`, `y`).
+    #[inline]
+    fn row_rays(&self, x0: usize, y: usize) -> RowRays<'_> {
+        let at = y * self.stride + x0;
+        RowRays {
+            x: lanes(&self.ray_x, at),
+            y: lanes(&self.ray_y, at),
+            z: lanes(&self.ray_z, at),
+        }
     }
 
     /// Renders `scene` seen from `world_from_camera` into `image` (row-major RGB8, exactly
@@ -274,33 +402,32 @@ impl Renderer {
             colour.map(|c| (c as f32 * shade).round() as u8)
         };
         let camera_from_world = world_from_camera.inverse();
+        // Palette: background, floor, then the six lit faces of every box.
+        let mut palette = vec![scene.background, lit(scene.floor_colour, Vector3::z())];
         let boxes: Vec<PreparedBox> = scene
             .boxes
             .iter()
             .map(|b| {
                 let box_from_camera = b.pose.inverse() * world_from_camera;
                 let r = b.pose.rotation;
-                let axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
-                let mut faces = [[0u8; 3]; 6];
-                for (axis, a) in axes.iter().enumerate() {
-                    faces[2 * axis] = lit(b.colour, -a);
-                    faces[2 * axis + 1] = lit(b.colour, *a);
+                for a in [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()] {
+                    palette.push(lit(b.colour, -a));
+                    palette.push(lit(b.colour, a));
                 }
-                PreparedBox {
-                    box_from_camera: box_from_camera
+                PreparedBox::new(
+                    &box_from_camera
                         .rotation
                         .to_rotation_matrix()
                         .matrix()
                         .cast(),
-                    camera_in_box: box_from_camera.translation.vector.cast(),
-                    half: (0.5 * b.size).cast(),
-                    faces,
-                }
+                    &box_from_camera.translation.vector.cast(),
+                    &(0.5 * b.size).cast(),
+                )
             })
             .collect();
-        // Bounding cone of every box: direction and half-angle seen from the camera (None: the
-        // camera is inside the bounding sphere, so the box may be anywhere in the image).
-        let cones: Vec<Option<(Vector3<f64>, f64)>> = scene
+        // Bounding cone of every box seen from the camera (None: the camera is inside the
+        // bounding sphere, so the box may be anywhere in the image).
+        let cones: Vec<Option<Cone>> = scene
             .boxes
             .iter()
             .map(|b| {
@@ -308,45 +435,43 @@ impl Renderer {
                 let distance = centre.coords.norm();
                 let radius = 0.5 * b.size.norm();
                 (distance > radius * 1.001)
-                    .then(|| (centre.coords / distance, (radius / distance).asin()))
+                    .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
             })
             .collect();
         let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
         let camera_height = world_from_camera.translation.z as f32;
-        let floor = lit(scene.floor_colour, Vector3::z());
-        let background = scene.background;
         let mut candidates = Vec::with_capacity(boxes.len());
         let mut noise = self.noise.stream(rng);
         for tile in &self.tiles {
             candidates.clear();
             candidates.extend(cones.iter().enumerate().filter_map(|(i, cone)| match cone {
                 None => Some(i),
-                Some((direction, angle)) => {
-                    let between = tile.axis.dot(direction).clamp(-1.0, 1.0).acos();
-                    (between <= tile.half_angle + angle).then_some(i)
-                }
+                Some(cone) => tile.may_see(cone).then_some(i),
             }));
             for y in tile.y0..tile.y1 {
-                for x in tile.x0..tile.x1 {
-                    let index = y * w + x;
-                    let Some(ray) = &self.rays[index] else {
-                        continue;
-                    };
-                    let mut nearest = f32::INFINITY;
-                    let mut colour = background;
-                    let down = floor_normal.dot(ray);
+                let rays = self.row_rays(tile.x0, y);
+                let mut hits = RowHits {
+                    depth: [f32::INFINITY; LANES],
+                    surface: [SURFACE_BACKGROUND; LANES],
+                };
+                for k in 0..LANES {
+                    let down = floor_normal.x * rays.x[k]
+                        + floor_normal.y * rays.y[k]
+                        + floor_normal.z * rays.z[k];
                     if down < 0.0 && camera_height > 0.0 {
-                        nearest = -camera_height / down;
-                        colour = floor;
+                        hits.depth[k] = -camera_height / down;
+                        hits.surface[k] = SURFACE_FLOOR;
                     }
-                    for &i in &candidates {
-                        if let Some((t, face)) = boxes[i].hit(ray)
-                            && t < nearest
-                        {
-                            nearest = t;
-                            colour = boxes[i].faces[face];
-                        }
+                }
+                for &i in &candidates {
+                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u16);
+                }
+                for (k, x) in (tile.x0..tile.x1).enumerate() {
+                    let index = y * w + x;
+                    if !self.inside[index] {
+                        continue;
                     }
+                    let colour = palette[hits.surface[k] as usize];
                     let pixel = &mut image[index * 3..index * 3 + 3];
                     for (out, value) in pixel.iter_mut().zip(colour) {
                         *out = (value as i16 + noise.next()).clamp(0, 255) as u8;
@@ -600,21 +725,37 @@ mod tests {
 
     #[test]
     fn slab_test_finds_the_entry_face() {
-        let cube = PreparedBox {
-            box_from_camera: Matrix3::identity(),
-            camera_in_box: Vector3::new(0.0, 0.0, 1.0),
-            half: Vector3::repeat(0.1),
-            faces: [[0; 3]; 6],
-        };
-        let (t, face) = cube.hit(&Vector3::new(0.0, 0.0, -1.0)).unwrap();
-        assert!((t - 0.9).abs() < 1e-6);
-        assert_eq!(face, 5, "+z face");
-        assert!(cube.hit(&Vector3::new(0.0, 0.0, 1.0)).is_none(), "behind");
-        assert!(
-            cube.hit(&Vector3::new(1.0, 0.0, -1.0).normalize())
-                .is_none(),
-            "beside"
+        let cube = PreparedBox::new(
+            &Matrix3::identity(),
+            &Vector3::new(0.0, 0.0, 1.0),
+            &Vector3::repeat(0.1),
         );
+        // Lane 0 looks straight down at the cube, lane 1 up (behind), lane 2 beside it.
+        let beside = Vector3::new(1.0f32, 0.0, -1.0).normalize();
+        let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [-1.0f32; LANES]);
+        z[1] = 1.0;
+        (x[2], y[2], z[2]) = (beside.x, beside.y, beside.z);
+        let rays = RowRays {
+            x: &x,
+            y: &y,
+            z: &z,
+        };
+        let mut hits = RowHits {
+            depth: [f32::INFINITY; LANES],
+            surface: [SURFACE_BACKGROUND; LANES],
+        };
+        cube.hit_row(&rays, &mut hits, SURFACE_FIRST_BOX);
+        assert!((hits.depth[0] - 0.9).abs() < 1e-6);
+        assert_eq!(hits.surface[0], SURFACE_FIRST_BOX + 5, "+z face");
+        assert_eq!(hits.surface[1], SURFACE_BACKGROUND, "behind");
+        assert_eq!(hits.surface[2], SURFACE_BACKGROUND, "beside");
+        // A nearer surface already seen hides the cube.
+        let mut nearer = RowHits {
+            depth: [0.5; LANES],
+            surface: [SURFACE_FLOOR; LANES],
+        };
+        cube.hit_row(&rays, &mut nearer, SURFACE_FIRST_BOX);
+        assert_eq!(nearer.surface[0], SURFACE_FLOOR);
     }
 
     #[test]
