@@ -6,13 +6,16 @@
 //! ray (pre-computed once per camera, camera frame) is cast against the floor and the boxes
 //! (slab test). To keep a frame near a millisecond, the image is split into 16×16 tiles whose
 //! rays lie in a pre-computed cone; per frame, each box is tested only in the tiles whose cone
-//! meets the box's bounding-sphere cone. The gripper's fingers are not rendered.
+//! meets the box's bounding-sphere cone. The gripper's fingers are not rendered. Pixel noise:
+//! [`crate::pixel_noise`].
 
 use std::collections::VecDeque;
 
 use motm_core::camera::{CameraCalibration, CameraConfig, CameraModel};
 use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
 use rand::{Rng, RngExt, SeedableRng};
+
+use crate::pixel_noise::{PixelNoise, add_noise};
 use rand_chacha::ChaCha8Rng;
 
 /// Colour of the cube to pick: saturated red.
@@ -28,6 +31,8 @@ pub const BACKGROUND: [u8; 3] = [196, 204, 214];
 
 /// Ambient share of the lighting; the directional light adds up to `1 − AMBIENT`.
 const AMBIENT: f32 = 0.55;
+/// Seed of the noise pool of a [`Renderer::new`] (a [`PalmCamera`] draws its own from its seed).
+const NOISE_POOL_SEED: u64 = 0x9e37_79b9_7f4a_7c15;
 /// Side of the square pixel tiles used to cull boxes, pixels.
 const TILE: usize = 16;
 
@@ -282,13 +287,29 @@ pub struct Renderer {
     /// Whether each pixel (row-major, `width` per row) is inside the image circle.
     inside: Vec<bool>,
     tiles: Vec<Tile>,
-    noise: NoiseTable,
+    noise: PixelNoise,
+    /// Byte ranges of the image inside the image circle (runs of whole pixels within a row).
+    inside_runs: Vec<std::ops::Range<usize>>,
 }
 
 impl Renderer {
     /// A renderer for `model` adding Gaussian noise of `pixel_noise_std` (8-bit levels) to every
-    /// channel of every pixel.
+    /// channel of every pixel, its noise pool drawn from a fixed seed ([`Renderer::with_noise`]).
     pub fn new(model: CameraModel, pixel_noise_std: f64) -> Self {
+        Self::with_noise(
+            model,
+            pixel_noise_std,
+            &mut ChaCha8Rng::seed_from_u64(NOISE_POOL_SEED),
+        )
+    }
+
+    /// [`Renderer::new`] with the pool of pre-drawn noise values (see [`crate::pixel_noise`])
+    /// drawn from `rng`; each frame then draws only its offset into the pool.
+    pub fn with_noise<R: Rng + ?Sized>(
+        model: CameraModel,
+        pixel_noise_std: f64,
+        rng: &mut R,
+    ) -> Self {
         let (w, h) = (model.width as usize, model.height as usize);
         let stride = w.div_ceil(TILE) * TILE;
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
@@ -336,6 +357,8 @@ impl Renderer {
                 });
             }
         }
+        let inside_runs = inside_runs(&rays, w);
+        let inside_len = inside_runs.iter().map(|run| run.len()).sum();
         Self {
             model,
             stride,
@@ -344,7 +367,8 @@ impl Renderer {
             ray_z,
             inside: rays.iter().map(Option::is_some).collect(),
             tiles,
-            noise: NoiseTable::new(pixel_noise_std),
+            noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
+            inside_runs,
         }
     }
 
@@ -441,7 +465,6 @@ impl Renderer {
         let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
         let camera_height = world_from_camera.translation.z as f32;
         let mut candidates = Vec::with_capacity(boxes.len());
-        let mut noise = self.noise.stream(rng);
         for tile in &self.tiles {
             candidates.clear();
             candidates.extend(cones.iter().enumerate().filter_map(|(i, cone)| match cone {
@@ -471,12 +494,17 @@ impl Renderer {
                     if !self.inside[index] {
                         continue;
                     }
-                    let colour = palette[hits.surface[k] as usize];
-                    let pixel = &mut image[index * 3..index * 3 + 3];
-                    for (out, value) in pixel.iter_mut().zip(colour) {
-                        *out = (value as i16 + noise.next()).clamp(0, 255) as u8;
-                    }
+                    image[index * 3..index * 3 + 3]
+                        .copy_from_slice(&palette[hits.surface[k] as usize]);
                 }
+            }
+        }
+        let inside_len = self.inside_runs.iter().map(|run| run.len()).sum();
+        if let Some(mut noise) = self.noise.frame(inside_len, rng) {
+            for run in &self.inside_runs {
+                let (values, rest) = noise.split_at(run.len());
+                add_noise(&mut image[run.clone()], values);
+                noise = rest;
             }
         }
     }
@@ -484,115 +512,25 @@ impl Renderer {
 
 type Point = nalgebra::Point3<f64>;
 
-/// Number of entries in the Gaussian quantile table (12 bits of randomness per draw).
-const NOISE_LEVELS: usize = 4096;
-
-/// Gaussian noise from a quantile table: each draw takes 12 random bits, so one `u64` gives five
-/// draws. The table holds the standard normal quantiles at (k + ½)/4096 times σ, rounded to whole
-/// 8-bit levels (the image is integer anyway), so the draws are Gaussian to within the table's
-/// resolution (tails cut at ±3.7σ) then rounded.
-#[derive(Debug, Clone)]
-struct NoiseTable {
-    values: Vec<i16>,
-}
-
-impl NoiseTable {
-    fn new(std: f64) -> Self {
-        let values = if std > 0.0 {
-            (0..NOISE_LEVELS)
-                .map(|k| {
-                    let q = std * normal_quantile((k as f64 + 0.5) / NOISE_LEVELS as f64);
-                    q.round().clamp(-255.0, 255.0) as i16
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        Self { values }
-    }
-
-    fn stream<'a, R: Rng + ?Sized>(&'a self, rng: &'a mut R) -> NoiseStream<'a, R> {
-        NoiseStream {
-            table: &self.values,
-            rng,
-            bits: 0,
-            left: 0,
+/// The byte ranges of a row-major RGB8 image of width `w` covered by runs of pixels whose ray
+/// exists, each run within one row.
+fn inside_runs(rays: &[Option<Vector3<f32>>], w: usize) -> Vec<std::ops::Range<usize>> {
+    let mut runs = Vec::new();
+    for (y, row) in rays.chunks(w).enumerate() {
+        let mut x = 0;
+        while x < w {
+            if row[x].is_none() {
+                x += 1;
+                continue;
+            }
+            let start = x;
+            while x < w && row[x].is_some() {
+                x += 1;
+            }
+            runs.push((y * w + start) * 3..(y * w + x) * 3);
         }
     }
-}
-
-/// Draws from a [`NoiseTable`].
-struct NoiseStream<'a, R: ?Sized> {
-    table: &'a [i16],
-    rng: &'a mut R,
-    bits: u64,
-    left: u32,
-}
-
-impl<R: Rng + ?Sized> NoiseStream<'_, R> {
-    #[inline]
-    fn next(&mut self) -> i16 {
-        if self.table.is_empty() {
-            return 0;
-        }
-        if self.left == 0 {
-            self.bits = self.rng.next_u64();
-            self.left = 5;
-        }
-        let k = (self.bits & (NOISE_LEVELS as u64 - 1)) as usize;
-        self.bits >>= 12;
-        self.left -= 1;
-        self.table[k]
-    }
-}
-
-/// The standard normal quantile (inverse CDF) at `p` in (0, 1), by Acklam's rational
-/// approximation (relative error below 1.2·10⁻⁹).
-fn normal_quantile(p: f64) -> f64 {
-    const A: [f64; 6] = [
-        -3.969_683_028_665_376e1,
-        2.209_460_984_245_205e2,
-        -2.759_285_104_469_687e2,
-        1.383_577_518_672_69e2,
-        -3.066_479_806_614_716e1,
-        2.506_628_277_459_239,
-    ];
-    const B: [f64; 5] = [
-        -5.447_609_879_822_406e1,
-        1.615_858_368_580_409e2,
-        -1.556_989_798_598_866e2,
-        6.680_131_188_771_972e1,
-        -1.328_068_155_288_572e1,
-    ];
-    const C: [f64; 6] = [
-        -7.784_894_002_430_293e-3,
-        -3.223_964_580_411_365e-1,
-        -2.400_758_277_161_838,
-        -2.549_732_539_343_734,
-        4.374_664_141_464_968,
-        2.938_163_982_698_783,
-    ];
-    const D: [f64; 4] = [
-        7.784_695_709_041_462e-3,
-        3.224_671_290_700_398e-1,
-        2.445_134_137_142_996,
-        3.754_408_661_907_416,
-    ];
-    let tail = |q: f64| {
-        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
-            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
-    };
-    const LOW: f64 = 0.02425;
-    if p < LOW {
-        tail((-2.0 * p.ln()).sqrt())
-    } else if p > 1.0 - LOW {
-        -tail((-2.0 * (1.0 - p).ln()).sqrt())
-    } else {
-        let q = p - 0.5;
-        let r = q * q;
-        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
-            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
-    }
+    runs
 }
 
 /// One image from the palm camera.
@@ -628,7 +566,7 @@ impl PalmCamera {
         let offset = random_unit_vector(&mut rng) * config.extrinsic_error;
         Self {
             config: *config,
-            renderer: Renderer::new(config.model(), config.pixel_noise_std),
+            renderer: Renderer::with_noise(config.model(), config.pixel_noise_std, &mut rng),
             calibration: config.calibration().with_position_offset(offset),
             rng,
             next_capture: 0.0,
@@ -701,27 +639,6 @@ fn random_unit_vector<R: Rng + ?Sized>(rng: &mut R) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn normal_quantile_matches_known_values() {
-        assert!(normal_quantile(0.5).abs() < 1e-12);
-        assert!((normal_quantile(0.975) - 1.959_963_984_540_054).abs() < 1e-8);
-        assert!((normal_quantile(0.001) + 3.090_232_306_167_813).abs() < 1e-7);
-    }
-
-    #[test]
-    fn noise_has_the_configured_spread() {
-        let table = NoiseTable::new(3.0);
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut stream = table.stream(&mut rng);
-        let samples: Vec<f64> = (0..50_000).map(|_| stream.next() as f64).collect();
-        let mean = samples.iter().sum::<f64>() / samples.len() as f64;
-        let var = samples.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / samples.len() as f64;
-        assert!(mean.abs() < 0.05, "mean {mean}");
-        // Rounding to whole levels adds 1/12 to the variance.
-        let expected = (9.0_f64 + 1.0 / 12.0).sqrt();
-        assert!((var.sqrt() - expected).abs() < 0.05, "std {}", var.sqrt());
-    }
 
     #[test]
     fn slab_test_finds_the_entry_face() {
