@@ -555,7 +555,7 @@ pub struct PalmCamera {
     rng: ChaCha8Rng,
     calibration: CameraCalibration,
     next_capture: f64,
-    in_flight: VecDeque<CameraFrame>,
+    in_flight: VecDeque<Capture>,
 }
 
 impl PalmCamera {
@@ -599,15 +599,26 @@ impl PalmCamera {
         world_from_tool: &Isometry3<f64>,
         now: f64,
     ) -> Option<CameraFrame> {
+        self.step_rendering(scene, world_from_tool, now, true)
+    }
+
+    /// [`PalmCamera::step`], but the frame due for delivery is rendered (and returned) only when
+    /// `render` is true: a frame nobody reads need not be rendered. A frame is rendered when it
+    /// is delivered, from the scene, pose and noise seed kept at its capture, so captures,
+    /// delivery times and the seeded draws are the same whatever `render` says, and every frame
+    /// that is rendered is bit for bit the one [`PalmCamera::step`] gives.
+    pub fn step_rendering(
+        &mut self,
+        scene: &Scene,
+        world_from_tool: &Isometry3<f64>,
+        now: f64,
+        render: bool,
+    ) -> Option<CameraFrame> {
         if now >= self.next_capture {
-            let world_from_camera = world_from_tool * self.config.tool_from_camera.isometry();
-            let image = self
-                .renderer
-                .render(scene, &world_from_camera, &mut self.rng);
-            self.in_flight.push_back(CameraFrame {
-                image,
-                width: self.config.width,
-                height: self.config.height,
+            self.in_flight.push_back(Capture {
+                scene: scene.clone(),
+                world_from_camera: world_from_tool * self.config.tool_from_camera.isometry(),
+                noise_seed: self.rng.next_u64(),
                 stamp: now,
             });
             let period = 1.0 / self.config.rate_hz;
@@ -621,8 +632,28 @@ impl PalmCamera {
         {
             ready = self.in_flight.pop_front();
         }
-        ready
+        let capture = ready.filter(|_| render)?;
+        let image = self.renderer.render(
+            &capture.scene,
+            &capture.world_from_camera,
+            &mut ChaCha8Rng::seed_from_u64(capture.noise_seed),
+        );
+        Some(CameraFrame {
+            image,
+            width: self.config.width,
+            height: self.config.height,
+            stamp: capture.stamp,
+        })
     }
+}
+
+/// A frame captured and not yet delivered: what it shows and the seed of its noise.
+#[derive(Debug, Clone)]
+struct Capture {
+    scene: Scene,
+    world_from_camera: Isometry3<f64>,
+    noise_seed: u64,
+    stamp: f64,
 }
 
 /// A direction drawn uniformly on the unit sphere.
@@ -700,5 +731,48 @@ mod tests {
         let offset = camera.calibration().tool_from_camera.translation.vector
             - config.tool_from_camera.isometry().translation.vector;
         assert!((offset.norm() - config.extrinsic_error).abs() < 1e-12);
+    }
+
+    #[test]
+    fn frames_left_unrendered_leave_the_rendered_ones_unchanged() {
+        let config = CameraConfig {
+            width: 48,
+            height: 32,
+            pixel_noise_std: 2.0,
+            ..Default::default()
+        };
+        let mut scene = Scene::default();
+        scene
+            .boxes
+            .push(SceneBox::cube(Vector3::new(0.05, 0.0, 0.5), 0.3, 0.05));
+        let mut always = PalmCamera::new(&config, 3);
+        let mut sometimes = PalmCamera::new(&config, 3);
+        let (mut compared, mut skipped) = (0, 0);
+        for k in 0..=600 {
+            let now = k as f64 * 0.001;
+            let pose = Isometry3::new(
+                Vector3::new(0.0002 * k as f64, 0.0, 1.0),
+                Vector3::new(std::f64::consts::PI, 0.0, 0.0),
+            );
+            let render = (k / 100) % 2 == 0;
+            let full = always.step(&scene, &pose, now);
+            let partial = sometimes.step_rendering(&scene, &pose, now, render);
+            match (full, partial) {
+                (Some(a), Some(b)) => {
+                    assert_eq!(a, b);
+                    compared += 1;
+                }
+                (Some(_), None) => {
+                    assert!(!render);
+                    skipped += 1;
+                }
+                (None, None) => {}
+                (None, Some(_)) => panic!("a frame the full camera did not deliver"),
+            }
+        }
+        assert!(
+            compared >= 5 && skipped >= 5,
+            "{compared} compared, {skipped} skipped"
+        );
     }
 }
