@@ -198,15 +198,15 @@ fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
 /// What each pixel of a tile row sees so far: distance and surface (index into the palette).
 struct RowHits {
     depth: [f32; LANES],
-    surface: [u16; LANES],
+    surface: [u32; LANES],
 }
 
 /// Palette index of the background.
-const SURFACE_BACKGROUND: u16 = 0;
+const SURFACE_BACKGROUND: u32 = 0;
 /// Palette index of the floor.
-const SURFACE_FLOOR: u16 = 1;
+const SURFACE_FLOOR: u32 = 1;
 /// Palette index of the first face of the first box (each box has six).
-const SURFACE_FIRST_BOX: u16 = 2;
+const SURFACE_FIRST_BOX: u32 = 2;
 
 /// A box prepared for one frame: its pose relative to the camera in f32.
 #[derive(Debug, Clone, Copy)]
@@ -237,11 +237,11 @@ impl PreparedBox {
     /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
     /// row) so that it compiles to SIMD.
     #[inline]
-    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u16) {
+    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u32) {
         let m = &self.box_from_camera;
         let mut near = [f32::NEG_INFINITY; LANES];
         let mut far = [f32::INFINITY; LANES];
-        let mut face = [0u16; LANES];
+        let mut face = [0u32; LANES];
         for axis in 0..3 {
             let (low, high) = (self.slab_low[axis], self.slab_high[axis]);
             let row = m[axis];
@@ -255,14 +255,14 @@ impl PreparedBox {
                 let hi = if ordered { t2 } else { t1 };
                 let enters = lo > near[k];
                 near[k] = if enters { lo } else { near[k] };
-                let entry_face = 2 * axis as u16 + u16::from(d < 0.0);
+                let entry_face = 2 * axis as u32 + u32::from(d < 0.0);
                 face[k] = if enters { entry_face } else { face[k] };
                 // As f32::min: a NaN `hi` leaves `far` as it is.
                 far[k] = if hi < far[k] { hi } else { far[k] };
             }
         }
         for k in 0..LANES {
-            let closer = near[k] <= far[k] && near[k] > 0.0 && near[k] < hits.depth[k];
+            let closer = (near[k] <= far[k]) & (near[k] > 0.0) & (near[k] < hits.depth[k]);
             hits.depth[k] = if closer { near[k] } else { hits.depth[k] };
             hits.surface[k] = if closer {
                 first_face + face[k]
@@ -477,17 +477,23 @@ impl Renderer {
                     depth: [f32::INFINITY; LANES],
                     surface: [SURFACE_BACKGROUND; LANES],
                 };
+                let above_floor = camera_height > 0.0;
                 for k in 0..LANES {
                     let down = floor_normal.x * rays.x[k]
                         + floor_normal.y * rays.y[k]
                         + floor_normal.z * rays.z[k];
-                    if down < 0.0 && camera_height > 0.0 {
-                        hits.depth[k] = -camera_height / down;
-                        hits.surface[k] = SURFACE_FLOOR;
-                    }
+                    // Branch-free, so that the loop compiles to SIMD.
+                    let floor = (down < 0.0) & above_floor;
+                    let t = -camera_height / down;
+                    hits.depth[k] = if floor { t } else { f32::INFINITY };
+                    hits.surface[k] = if floor {
+                        SURFACE_FLOOR
+                    } else {
+                        SURFACE_BACKGROUND
+                    };
                 }
                 for &i in &candidates {
-                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u16);
+                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u32);
                 }
                 for (k, x) in (tile.x0..tile.x1).enumerate() {
                     let index = y * w + x;
