@@ -237,6 +237,10 @@ impl PreparedBox {
     /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
     /// row) so that it compiles to SIMD.
     #[inline]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
     fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u32) {
         let m = &self.box_from_camera;
         let mut near = [f32::NEG_INFINITY; LANES];
@@ -406,6 +410,10 @@ impl Renderer {
     ///
     /// # Panics
     /// If `image` has the wrong length.
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
     pub fn render_into<R: Rng + ?Sized>(
         &self,
         scene: &Scene,
