@@ -11,6 +11,7 @@ pub mod grasp;
 pub mod gripper;
 pub mod metrics;
 pub mod objects;
+mod pixel_noise;
 pub mod random;
 pub mod render;
 pub mod runner;

@@ -6,13 +6,16 @@
 //! ray (pre-computed once per camera, camera frame) is cast against the floor and the boxes
 //! (slab test). To keep a frame near a millisecond, the image is split into 16×16 tiles whose
 //! rays lie in a pre-computed cone; per frame, each box is tested only in the tiles whose cone
-//! meets the box's bounding-sphere cone. The gripper's fingers are not rendered.
+//! meets the box's bounding-sphere cone. The gripper's fingers are not rendered. Pixel noise:
+//! [`crate::pixel_noise`].
 
 use std::collections::VecDeque;
 
 use motm_core::camera::{CameraCalibration, CameraConfig, CameraModel};
 use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
 use rand::{Rng, RngExt, SeedableRng};
+
+use crate::pixel_noise::{PixelNoise, add_noise};
 use rand_chacha::ChaCha8Rng;
 
 /// Colour of the cube to pick: saturated red.
@@ -28,6 +31,8 @@ pub const BACKGROUND: [u8; 3] = [196, 204, 214];
 
 /// Ambient share of the lighting; the directional light adds up to `1 − AMBIENT`.
 const AMBIENT: f32 = 0.55;
+/// Seed of the noise pool of a [`Renderer::new`] (a [`PalmCamera`] draws its own from its seed).
+const NOISE_POOL_SEED: u64 = 0x9e37_79b9_7f4a_7c15;
 /// Side of the square pixel tiles used to cull boxes, pixels.
 const TILE: usize = 16;
 
@@ -135,41 +140,140 @@ struct Tile {
     y0: usize,
     x1: usize,
     y1: usize,
+    /// The cone that contains every ray of the tile.
+    cone: Cone,
+}
+
+impl Tile {
+    /// Whether a box inside `cone` may be seen by a pixel of this tile: the angle between the
+    /// two cone axes is at most the sum of the half-angles. Compared through cosines (no `acos`
+    /// per tile and box), with a small margin so rounding never drops a box the exact test keeps.
+    #[inline]
+    fn may_see(&self, cone: &Cone) -> bool {
+        let own = &self.cone;
+        own.half_angle + cone.half_angle >= std::f64::consts::PI
+            || own.axis.dot(&cone.axis)
+                >= own.cos_half * cone.cos_half - own.sin_half * cone.sin_half - 1e-9
+    }
+}
+
+/// A circular cone of directions from the camera: its axis (unit) and half-angle.
+#[derive(Debug, Clone, Copy)]
+struct Cone {
     axis: Vector3<f64>,
     half_angle: f64,
+    cos_half: f64,
+    sin_half: f64,
 }
+
+impl Cone {
+    fn new(axis: Vector3<f64>, half_angle: f64) -> Self {
+        Self {
+            axis,
+            half_angle,
+            cos_half: half_angle.cos(),
+            sin_half: half_angle.sin(),
+        }
+    }
+}
+
+/// Number of pixels handled together in the ray loops: one row of a tile.
+const LANES: usize = TILE;
+
+/// The camera-frame rays of one tile row, one array per coordinate (zero outside the image).
+struct RowRays<'a> {
+    x: &'a [f32; LANES],
+    y: &'a [f32; LANES],
+    z: &'a [f32; LANES],
+}
+
+/// The `LANES` values of `values` from `at` on.
+#[inline]
+fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
+    values[at..at + LANES]
+        .try_into()
+        .expect("rows are padded to whole tiles")
+}
+
+/// What each pixel of a tile row sees so far: distance and surface (index into the palette).
+struct RowHits {
+    depth: [f32; LANES],
+    surface: [u32; LANES],
+}
+
+/// Palette index of the background.
+const SURFACE_BACKGROUND: u32 = 0;
+/// Palette index of the floor.
+const SURFACE_FLOOR: u32 = 1;
+/// Palette index of the first face of the first box (each box has six).
+const SURFACE_FIRST_BOX: u32 = 2;
 
 /// A box prepared for one frame: its pose relative to the camera in f32.
 #[derive(Debug, Clone, Copy)]
 struct PreparedBox {
-    box_from_camera: Matrix3<f32>,
-    camera_in_box: Vector3<f32>,
-    half: Vector3<f32>,
-    /// Lit colour of the faces −x, +x, −y, +y, −z, +z.
-    faces: [[u8; 3]; 6],
+    /// Rows of the rotation from camera to box frame.
+    box_from_camera: [[f32; 3]; 3],
+    /// Slab bounds relative to the camera position, per axis: `−half − o` and `half − o`.
+    slab_low: [f32; 3],
+    slab_high: [f32; 3],
 }
 
 impl PreparedBox {
-    /// Distance along `ray` (camera frame, unit) to the box's surface and the face hit, if the
-    /// ray enters the box in front of the camera.
-    #[inline]
-    fn hit(&self, ray: &Vector3<f32>) -> Option<(f32, usize)> {
-        let d = self.box_from_camera * ray;
-        let o = self.camera_in_box;
-        let (mut near, mut far, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0);
-        for axis in 0..3 {
-            let inv = 1.0 / d[axis];
-            let t1 = (-self.half[axis] - o[axis]) * inv;
-            let t2 = (self.half[axis] - o[axis]) * inv;
-            let (lo, hi) = if t1 < t2 { (t1, t2) } else { (t2, t1) };
-            if lo > near {
-                near = lo;
-                // Entering through the −face when travelling along +axis.
-                face = 2 * axis + usize::from(d[axis] < 0.0);
-            }
-            far = far.min(hi);
+    fn new(
+        box_from_camera: &Matrix3<f32>,
+        camera_in_box: &Vector3<f32>,
+        half: &Vector3<f32>,
+    ) -> Self {
+        Self {
+            box_from_camera: [0, 1, 2].map(|r| [0, 1, 2].map(|c| box_from_camera[(r, c)])),
+            slab_low: [0, 1, 2].map(|a| -half[a] - camera_in_box[a]),
+            slab_high: [0, 1, 2].map(|a| half[a] - camera_in_box[a]),
         }
-        (near <= far && near > 0.0).then_some((near, face))
+    }
+
+    /// Casts the rays of a tile row at the box (slab test), keeping the nearest surface per
+    /// pixel: a ray that enters the box in front of the camera, nearer than what the pixel saw
+    /// so far, sees the face it enters through (−x, +x, −y, +y, −z, +z are palette entries
+    /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
+    /// row) so that it compiles to SIMD.
+    #[inline]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
+    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u32) {
+        let m = &self.box_from_camera;
+        let mut near = [f32::NEG_INFINITY; LANES];
+        let mut far = [f32::INFINITY; LANES];
+        let mut face = [0u32; LANES];
+        for axis in 0..3 {
+            let (low, high) = (self.slab_low[axis], self.slab_high[axis]);
+            let row = m[axis];
+            for k in 0..LANES {
+                let d = row[0] * rays.x[k] + row[1] * rays.y[k] + row[2] * rays.z[k];
+                let inv = 1.0 / d;
+                let t1 = low * inv;
+                let t2 = high * inv;
+                let ordered = t1 < t2;
+                let lo = if ordered { t1 } else { t2 };
+                let hi = if ordered { t2 } else { t1 };
+                let enters = lo > near[k];
+                near[k] = if enters { lo } else { near[k] };
+                let entry_face = 2 * axis as u32 + u32::from(d < 0.0);
+                face[k] = if enters { entry_face } else { face[k] };
+                // As f32::min: a NaN `hi` leaves `far` as it is.
+                far[k] = if hi < far[k] { hi } else { far[k] };
+            }
+        }
+        for k in 0..LANES {
+            let closer = (near[k] <= far[k]) & (near[k] > 0.0) & (near[k] < hits.depth[k]);
+            hits.depth[k] = if closer { near[k] } else { hits.depth[k] };
+            hits.surface[k] = if closer {
+                first_face + face[k]
+            } else {
+                hits.surface[k]
+            };
+        }
     }
 }
 
@@ -177,17 +281,41 @@ impl PreparedBox {
 #[derive(Debug, Clone)]
 pub struct Renderer {
     model: CameraModel,
-    /// Camera-frame unit ray of every pixel; `None` outside the lens' image circle.
-    rays: Vec<Option<Vector3<f32>>>,
+    /// Row stride of the ray arrays: the width rounded up to whole tiles.
+    stride: usize,
+    /// Camera-frame unit ray of every pixel, one array per coordinate, `stride` per row; zero
+    /// outside the lens' image circle and in the padding.
+    ray_x: Vec<f32>,
+    ray_y: Vec<f32>,
+    ray_z: Vec<f32>,
+    /// Whether each pixel (row-major, `width` per row) is inside the image circle.
+    inside: Vec<bool>,
     tiles: Vec<Tile>,
-    noise: NoiseTable,
+    noise: PixelNoise,
+    /// Byte ranges of the image inside the image circle (runs of whole pixels within a row).
+    inside_runs: Vec<std::ops::Range<usize>>,
 }
 
 impl Renderer {
     /// A renderer for `model` adding Gaussian noise of `pixel_noise_std` (8-bit levels) to every
-    /// channel of every pixel.
+    /// channel of every pixel, its noise pool drawn from a fixed seed ([`Renderer::with_noise`]).
     pub fn new(model: CameraModel, pixel_noise_std: f64) -> Self {
+        Self::with_noise(
+            model,
+            pixel_noise_std,
+            &mut ChaCha8Rng::seed_from_u64(NOISE_POOL_SEED),
+        )
+    }
+
+    /// [`Renderer::new`] with the pool of pre-drawn noise values (see [`crate::pixel_noise`])
+    /// drawn from `rng`; each frame then draws only its offset into the pool.
+    pub fn with_noise<R: Rng + ?Sized>(
+        model: CameraModel,
+        pixel_noise_std: f64,
+        rng: &mut R,
+    ) -> Self {
         let (w, h) = (model.width as usize, model.height as usize);
+        let stride = w.div_ceil(TILE) * TILE;
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
             .map(|i| {
                 let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
@@ -196,6 +324,17 @@ impl Renderer {
                     .map(|r| r.into_inner().cast::<f32>())
             })
             .collect();
+        let (mut ray_x, mut ray_y, mut ray_z) = (
+            vec![0.0; stride * h],
+            vec![0.0; stride * h],
+            vec![0.0; stride * h],
+        );
+        for (i, ray) in rays.iter().enumerate() {
+            if let Some(r) = ray {
+                let at = (i / w) * stride + i % w;
+                (ray_x[at], ray_y[at], ray_z[at]) = (r.x, r.y, r.z);
+            }
+        }
         let mut tiles = Vec::new();
         for y0 in (0..h).step_by(TILE) {
             for x0 in (0..w).step_by(TILE) {
@@ -212,22 +351,28 @@ impl Renderer {
                 let half_angle = tile_rays()
                     .map(|r| r.dot(&axis).clamp(-1.0, 1.0).acos())
                     .fold(0.0, f64::max);
-                // Margin for f32 rounding of the rays.
                 tiles.push(Tile {
                     x0,
                     y0,
                     x1,
                     y1,
-                    axis,
-                    half_angle: half_angle + 1e-4,
+                    // Margin for f32 rounding of the rays.
+                    cone: Cone::new(axis, half_angle + 1e-4),
                 });
             }
         }
+        let inside_runs = inside_runs(&rays, w);
+        let inside_len = inside_runs.iter().map(|run| run.len()).sum();
         Self {
             model,
-            rays,
+            stride,
+            ray_x,
+            ray_y,
+            ray_z,
+            inside: rays.iter().map(Option::is_some).collect(),
             tiles,
-            noise: NoiseTable::new(pixel_noise_std),
+            noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
+            inside_runs,
         }
     }
 
@@ -248,12 +393,27 @@ impl Renderer {
         image
     }
 
+    /// The camera-frame rays of the tile row starting at pixel (`x0`, `y`).
+    #[inline]
+    fn row_rays(&self, x0: usize, y: usize) -> RowRays<'_> {
+        let at = y * self.stride + x0;
+        RowRays {
+            x: lanes(&self.ray_x, at),
+            y: lanes(&self.ray_y, at),
+            z: lanes(&self.ray_z, at),
+        }
+    }
+
     /// Renders `scene` seen from `world_from_camera` into `image` (row-major RGB8, exactly
     /// `width × height × 3` bytes). Pixels outside the lens' image circle are black. Noise draws
     /// come from `rng` (none when the noise is zero).
     ///
     /// # Panics
     /// If `image` has the wrong length.
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
     pub fn render_into<R: Rng + ?Sized>(
         &self,
         scene: &Scene,
@@ -274,33 +434,32 @@ impl Renderer {
             colour.map(|c| (c as f32 * shade).round() as u8)
         };
         let camera_from_world = world_from_camera.inverse();
+        // Palette: background, floor, then the six lit faces of every box.
+        let mut palette = vec![scene.background, lit(scene.floor_colour, Vector3::z())];
         let boxes: Vec<PreparedBox> = scene
             .boxes
             .iter()
             .map(|b| {
                 let box_from_camera = b.pose.inverse() * world_from_camera;
                 let r = b.pose.rotation;
-                let axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
-                let mut faces = [[0u8; 3]; 6];
-                for (axis, a) in axes.iter().enumerate() {
-                    faces[2 * axis] = lit(b.colour, -a);
-                    faces[2 * axis + 1] = lit(b.colour, *a);
+                for a in [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()] {
+                    palette.push(lit(b.colour, -a));
+                    palette.push(lit(b.colour, a));
                 }
-                PreparedBox {
-                    box_from_camera: box_from_camera
+                PreparedBox::new(
+                    &box_from_camera
                         .rotation
                         .to_rotation_matrix()
                         .matrix()
                         .cast(),
-                    camera_in_box: box_from_camera.translation.vector.cast(),
-                    half: (0.5 * b.size).cast(),
-                    faces,
-                }
+                    &box_from_camera.translation.vector.cast(),
+                    &(0.5 * b.size).cast(),
+                )
             })
             .collect();
-        // Bounding cone of every box: direction and half-angle seen from the camera (None: the
-        // camera is inside the bounding sphere, so the box may be anywhere in the image).
-        let cones: Vec<Option<(Vector3<f64>, f64)>> = scene
+        // Bounding cone of every box seen from the camera (None: the camera is inside the
+        // bounding sphere, so the box may be anywhere in the image).
+        let cones: Vec<Option<Cone>> = scene
             .boxes
             .iter()
             .map(|b| {
@@ -308,50 +467,58 @@ impl Renderer {
                 let distance = centre.coords.norm();
                 let radius = 0.5 * b.size.norm();
                 (distance > radius * 1.001)
-                    .then(|| (centre.coords / distance, (radius / distance).asin()))
+                    .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
             })
             .collect();
         let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
         let camera_height = world_from_camera.translation.z as f32;
-        let floor = lit(scene.floor_colour, Vector3::z());
-        let background = scene.background;
         let mut candidates = Vec::with_capacity(boxes.len());
-        let mut noise = self.noise.stream(rng);
         for tile in &self.tiles {
             candidates.clear();
             candidates.extend(cones.iter().enumerate().filter_map(|(i, cone)| match cone {
                 None => Some(i),
-                Some((direction, angle)) => {
-                    let between = tile.axis.dot(direction).clamp(-1.0, 1.0).acos();
-                    (between <= tile.half_angle + angle).then_some(i)
-                }
+                Some(cone) => tile.may_see(cone).then_some(i),
             }));
             for y in tile.y0..tile.y1 {
-                for x in tile.x0..tile.x1 {
-                    let index = y * w + x;
-                    let Some(ray) = &self.rays[index] else {
-                        continue;
+                let rays = self.row_rays(tile.x0, y);
+                let mut hits = RowHits {
+                    depth: [f32::INFINITY; LANES],
+                    surface: [SURFACE_BACKGROUND; LANES],
+                };
+                let above_floor = camera_height > 0.0;
+                for k in 0..LANES {
+                    let down = floor_normal.x * rays.x[k]
+                        + floor_normal.y * rays.y[k]
+                        + floor_normal.z * rays.z[k];
+                    // Branch-free, so that the loop compiles to SIMD.
+                    let floor = (down < 0.0) & above_floor;
+                    let t = -camera_height / down;
+                    hits.depth[k] = if floor { t } else { f32::INFINITY };
+                    hits.surface[k] = if floor {
+                        SURFACE_FLOOR
+                    } else {
+                        SURFACE_BACKGROUND
                     };
-                    let mut nearest = f32::INFINITY;
-                    let mut colour = background;
-                    let down = floor_normal.dot(ray);
-                    if down < 0.0 && camera_height > 0.0 {
-                        nearest = -camera_height / down;
-                        colour = floor;
-                    }
-                    for &i in &candidates {
-                        if let Some((t, face)) = boxes[i].hit(ray)
-                            && t < nearest
-                        {
-                            nearest = t;
-                            colour = boxes[i].faces[face];
-                        }
-                    }
-                    let pixel = &mut image[index * 3..index * 3 + 3];
-                    for (out, value) in pixel.iter_mut().zip(colour) {
-                        *out = (value as i16 + noise.next()).clamp(0, 255) as u8;
-                    }
                 }
+                for &i in &candidates {
+                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u32);
+                }
+                for (k, x) in (tile.x0..tile.x1).enumerate() {
+                    let index = y * w + x;
+                    if !self.inside[index] {
+                        continue;
+                    }
+                    image[index * 3..index * 3 + 3]
+                        .copy_from_slice(&palette[hits.surface[k] as usize]);
+                }
+            }
+        }
+        let inside_len = self.inside_runs.iter().map(|run| run.len()).sum();
+        if let Some(mut noise) = self.noise.frame(inside_len, rng) {
+            for run in &self.inside_runs {
+                let (values, rest) = noise.split_at(run.len());
+                add_noise(&mut image[run.clone()], values);
+                noise = rest;
             }
         }
     }
@@ -359,115 +526,25 @@ impl Renderer {
 
 type Point = nalgebra::Point3<f64>;
 
-/// Number of entries in the Gaussian quantile table (12 bits of randomness per draw).
-const NOISE_LEVELS: usize = 4096;
-
-/// Gaussian noise from a quantile table: each draw takes 12 random bits, so one `u64` gives five
-/// draws. The table holds the standard normal quantiles at (k + ½)/4096 times σ, rounded to whole
-/// 8-bit levels (the image is integer anyway), so the draws are Gaussian to within the table's
-/// resolution (tails cut at ±3.7σ) then rounded.
-#[derive(Debug, Clone)]
-struct NoiseTable {
-    values: Vec<i16>,
-}
-
-impl NoiseTable {
-    fn new(std: f64) -> Self {
-        let values = if std > 0.0 {
-            (0..NOISE_LEVELS)
-                .map(|k| {
-                    let q = std * normal_quantile((k as f64 + 0.5) / NOISE_LEVELS as f64);
-                    q.round().clamp(-255.0, 255.0) as i16
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        Self { values }
-    }
-
-    fn stream<'a, R: Rng + ?Sized>(&'a self, rng: &'a mut R) -> NoiseStream<'a, R> {
-        NoiseStream {
-            table: &self.values,
-            rng,
-            bits: 0,
-            left: 0,
+/// The byte ranges of a row-major RGB8 image of width `w` covered by runs of pixels whose ray
+/// exists, each run within one row.
+fn inside_runs(rays: &[Option<Vector3<f32>>], w: usize) -> Vec<std::ops::Range<usize>> {
+    let mut runs = Vec::new();
+    for (y, row) in rays.chunks(w).enumerate() {
+        let mut x = 0;
+        while x < w {
+            if row[x].is_none() {
+                x += 1;
+                continue;
+            }
+            let start = x;
+            while x < w && row[x].is_some() {
+                x += 1;
+            }
+            runs.push((y * w + start) * 3..(y * w + x) * 3);
         }
     }
-}
-
-/// Draws from a [`NoiseTable`].
-struct NoiseStream<'a, R: ?Sized> {
-    table: &'a [i16],
-    rng: &'a mut R,
-    bits: u64,
-    left: u32,
-}
-
-impl<R: Rng + ?Sized> NoiseStream<'_, R> {
-    #[inline]
-    fn next(&mut self) -> i16 {
-        if self.table.is_empty() {
-            return 0;
-        }
-        if self.left == 0 {
-            self.bits = self.rng.next_u64();
-            self.left = 5;
-        }
-        let k = (self.bits & (NOISE_LEVELS as u64 - 1)) as usize;
-        self.bits >>= 12;
-        self.left -= 1;
-        self.table[k]
-    }
-}
-
-/// The standard normal quantile (inverse CDF) at `p` in (0, 1), by Acklam's rational
-/// approximation (relative error below 1.2·10⁻⁹).
-fn normal_quantile(p: f64) -> f64 {
-    const A: [f64; 6] = [
-        -3.969_683_028_665_376e1,
-        2.209_460_984_245_205e2,
-        -2.759_285_104_469_687e2,
-        1.383_577_518_672_69e2,
-        -3.066_479_806_614_716e1,
-        2.506_628_277_459_239,
-    ];
-    const B: [f64; 5] = [
-        -5.447_609_879_822_406e1,
-        1.615_858_368_580_409e2,
-        -1.556_989_798_598_866e2,
-        6.680_131_188_771_972e1,
-        -1.328_068_155_288_572e1,
-    ];
-    const C: [f64; 6] = [
-        -7.784_894_002_430_293e-3,
-        -3.223_964_580_411_365e-1,
-        -2.400_758_277_161_838,
-        -2.549_732_539_343_734,
-        4.374_664_141_464_968,
-        2.938_163_982_698_783,
-    ];
-    const D: [f64; 4] = [
-        7.784_695_709_041_462e-3,
-        3.224_671_290_700_398e-1,
-        2.445_134_137_142_996,
-        3.754_408_661_907_416,
-    ];
-    let tail = |q: f64| {
-        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
-            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
-    };
-    const LOW: f64 = 0.02425;
-    if p < LOW {
-        tail((-2.0 * p.ln()).sqrt())
-    } else if p > 1.0 - LOW {
-        -tail((-2.0 * (1.0 - p).ln()).sqrt())
-    } else {
-        let q = p - 0.5;
-        let r = q * q;
-        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
-            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
-    }
+    runs
 }
 
 /// One image from the palm camera.
@@ -492,7 +569,7 @@ pub struct PalmCamera {
     rng: ChaCha8Rng,
     calibration: CameraCalibration,
     next_capture: f64,
-    in_flight: VecDeque<CameraFrame>,
+    in_flight: VecDeque<Capture>,
 }
 
 impl PalmCamera {
@@ -503,7 +580,7 @@ impl PalmCamera {
         let offset = random_unit_vector(&mut rng) * config.extrinsic_error;
         Self {
             config: *config,
-            renderer: Renderer::new(config.model(), config.pixel_noise_std),
+            renderer: Renderer::with_noise(config.model(), config.pixel_noise_std, &mut rng),
             calibration: config.calibration().with_position_offset(offset),
             rng,
             next_capture: 0.0,
@@ -536,15 +613,26 @@ impl PalmCamera {
         world_from_tool: &Isometry3<f64>,
         now: f64,
     ) -> Option<CameraFrame> {
+        self.step_rendering(scene, world_from_tool, now, true)
+    }
+
+    /// [`PalmCamera::step`], but the frame due for delivery is rendered (and returned) only when
+    /// `render` is true: a frame nobody reads need not be rendered. A frame is rendered when it
+    /// is delivered, from the scene, pose and noise seed kept at its capture, so captures,
+    /// delivery times and the seeded draws are the same whatever `render` says, and every frame
+    /// that is rendered is bit for bit the one [`PalmCamera::step`] gives.
+    pub fn step_rendering(
+        &mut self,
+        scene: &Scene,
+        world_from_tool: &Isometry3<f64>,
+        now: f64,
+        render: bool,
+    ) -> Option<CameraFrame> {
         if now >= self.next_capture {
-            let world_from_camera = world_from_tool * self.config.tool_from_camera.isometry();
-            let image = self
-                .renderer
-                .render(scene, &world_from_camera, &mut self.rng);
-            self.in_flight.push_back(CameraFrame {
-                image,
-                width: self.config.width,
-                height: self.config.height,
+            self.in_flight.push_back(Capture {
+                scene: scene.clone(),
+                world_from_camera: world_from_tool * self.config.tool_from_camera.isometry(),
+                noise_seed: self.rng.next_u64(),
                 stamp: now,
             });
             let period = 1.0 / self.config.rate_hz;
@@ -558,8 +646,28 @@ impl PalmCamera {
         {
             ready = self.in_flight.pop_front();
         }
-        ready
+        let capture = ready.filter(|_| render)?;
+        let image = self.renderer.render(
+            &capture.scene,
+            &capture.world_from_camera,
+            &mut ChaCha8Rng::seed_from_u64(capture.noise_seed),
+        );
+        Some(CameraFrame {
+            image,
+            width: self.config.width,
+            height: self.config.height,
+            stamp: capture.stamp,
+        })
     }
+}
+
+/// A frame captured and not yet delivered: what it shows and the seed of its noise.
+#[derive(Debug, Clone)]
+struct Capture {
+    scene: Scene,
+    world_from_camera: Isometry3<f64>,
+    noise_seed: u64,
+    stamp: f64,
 }
 
 /// A direction drawn uniformly on the unit sphere.
@@ -578,43 +686,38 @@ mod tests {
     use super::*;
 
     #[test]
-    fn normal_quantile_matches_known_values() {
-        assert!(normal_quantile(0.5).abs() < 1e-12);
-        assert!((normal_quantile(0.975) - 1.959_963_984_540_054).abs() < 1e-8);
-        assert!((normal_quantile(0.001) + 3.090_232_306_167_813).abs() < 1e-7);
-    }
-
-    #[test]
-    fn noise_has_the_configured_spread() {
-        let table = NoiseTable::new(3.0);
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut stream = table.stream(&mut rng);
-        let samples: Vec<f64> = (0..50_000).map(|_| stream.next() as f64).collect();
-        let mean = samples.iter().sum::<f64>() / samples.len() as f64;
-        let var = samples.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / samples.len() as f64;
-        assert!(mean.abs() < 0.05, "mean {mean}");
-        // Rounding to whole levels adds 1/12 to the variance.
-        let expected = (9.0_f64 + 1.0 / 12.0).sqrt();
-        assert!((var.sqrt() - expected).abs() < 0.05, "std {}", var.sqrt());
-    }
-
-    #[test]
     fn slab_test_finds_the_entry_face() {
-        let cube = PreparedBox {
-            box_from_camera: Matrix3::identity(),
-            camera_in_box: Vector3::new(0.0, 0.0, 1.0),
-            half: Vector3::repeat(0.1),
-            faces: [[0; 3]; 6],
-        };
-        let (t, face) = cube.hit(&Vector3::new(0.0, 0.0, -1.0)).unwrap();
-        assert!((t - 0.9).abs() < 1e-6);
-        assert_eq!(face, 5, "+z face");
-        assert!(cube.hit(&Vector3::new(0.0, 0.0, 1.0)).is_none(), "behind");
-        assert!(
-            cube.hit(&Vector3::new(1.0, 0.0, -1.0).normalize())
-                .is_none(),
-            "beside"
+        let cube = PreparedBox::new(
+            &Matrix3::identity(),
+            &Vector3::new(0.0, 0.0, 1.0),
+            &Vector3::repeat(0.1),
         );
+        // Lane 0 looks straight down at the cube, lane 1 up (behind), lane 2 beside it.
+        let beside = Vector3::new(1.0f32, 0.0, -1.0).normalize();
+        let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [-1.0f32; LANES]);
+        z[1] = 1.0;
+        (x[2], y[2], z[2]) = (beside.x, beside.y, beside.z);
+        let rays = RowRays {
+            x: &x,
+            y: &y,
+            z: &z,
+        };
+        let mut hits = RowHits {
+            depth: [f32::INFINITY; LANES],
+            surface: [SURFACE_BACKGROUND; LANES],
+        };
+        cube.hit_row(&rays, &mut hits, SURFACE_FIRST_BOX);
+        assert!((hits.depth[0] - 0.9).abs() < 1e-6);
+        assert_eq!(hits.surface[0], SURFACE_FIRST_BOX + 5, "+z face");
+        assert_eq!(hits.surface[1], SURFACE_BACKGROUND, "behind");
+        assert_eq!(hits.surface[2], SURFACE_BACKGROUND, "beside");
+        // A nearer surface already seen hides the cube.
+        let mut nearer = RowHits {
+            depth: [0.5; LANES],
+            surface: [SURFACE_FLOOR; LANES],
+        };
+        cube.hit_row(&rays, &mut nearer, SURFACE_FIRST_BOX);
+        assert_eq!(nearer.surface[0], SURFACE_FLOOR);
     }
 
     #[test]
@@ -642,5 +745,48 @@ mod tests {
         let offset = camera.calibration().tool_from_camera.translation.vector
             - config.tool_from_camera.isometry().translation.vector;
         assert!((offset.norm() - config.extrinsic_error).abs() < 1e-12);
+    }
+
+    #[test]
+    fn frames_left_unrendered_leave_the_rendered_ones_unchanged() {
+        let config = CameraConfig {
+            width: 48,
+            height: 32,
+            pixel_noise_std: 2.0,
+            ..Default::default()
+        };
+        let mut scene = Scene::default();
+        scene
+            .boxes
+            .push(SceneBox::cube(Vector3::new(0.05, 0.0, 0.5), 0.3, 0.05));
+        let mut always = PalmCamera::new(&config, 3);
+        let mut sometimes = PalmCamera::new(&config, 3);
+        let (mut compared, mut skipped) = (0, 0);
+        for k in 0..=600 {
+            let now = k as f64 * 0.001;
+            let pose = Isometry3::new(
+                Vector3::new(0.0002 * k as f64, 0.0, 1.0),
+                Vector3::new(std::f64::consts::PI, 0.0, 0.0),
+            );
+            let render = (k / 100) % 2 == 0;
+            let full = always.step(&scene, &pose, now);
+            let partial = sometimes.step_rendering(&scene, &pose, now, render);
+            match (full, partial) {
+                (Some(a), Some(b)) => {
+                    assert_eq!(a, b);
+                    compared += 1;
+                }
+                (Some(_), None) => {
+                    assert!(!render);
+                    skipped += 1;
+                }
+                (None, None) => {}
+                (None, Some(_)) => panic!("a frame the full camera did not deliver"),
+            }
+        }
+        assert!(
+            compared >= 5 && skipped >= 5,
+            "{compared} compared, {skipped} skipped"
+        );
     }
 }

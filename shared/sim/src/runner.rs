@@ -179,6 +179,13 @@ impl TargetTracker {
         }
     }
 
+    /// Whether [`TargetTracker::observe`] reads camera frames now (during picks only).
+    fn wants_frames(&self) -> bool {
+        self.task
+            .and_then(|i| self.tasks.get(i))
+            .is_some_and(|task| task.kind == TaskKind::Pick)
+    }
+
     /// Feeds one camera frame to perception (picks only).
     fn observe(&mut self, image: &[u8], width: u32, height: u32, stamp: f64) {
         let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
@@ -388,8 +395,10 @@ pub fn run_trial(
             base: Some((command.base, 0.0)),
             gripper: Some(command.gripper),
         };
+        // Frames perception would not read are not rendered (the same trial either way).
+        let wants_frames = tracker.wants_frames();
         for _ in 0..physics_per_control {
-            if let Some(frame) = sim.step(&input) {
+            if let Some(frame) = sim.step_rendering(&input, wants_frames) {
                 tracker.observe(&frame.image, frame.width, frame.height, frame.stamp);
             }
         }

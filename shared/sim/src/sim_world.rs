@@ -198,6 +198,17 @@ impl SimWorld {
     /// Advances one physics period under the newest commands; returns the camera frame that
     /// became available, if any.
     pub fn step(&mut self, input: &HardwareInput) -> Option<CameraFrame> {
+        self.step_rendering(input, true)
+    }
+
+    /// [`SimWorld::step`], rendering the camera frame due for delivery only when
+    /// `render_frame` is true (see [`PalmCamera::step_rendering`]): the world, the captures and
+    /// every rendered frame are the same either way.
+    pub fn step_rendering(
+        &mut self,
+        input: &HardwareInput,
+        render_frame: bool,
+    ) -> Option<CameraFrame> {
         let arm_dof = self.command.arm_qd.len();
         let timeout = self.config.command_timeout;
         match input.arm {
@@ -233,9 +244,10 @@ impl SimWorld {
         // The scene is only built when a frame is captured.
         let frame = if self.camera.next_capture() <= now {
             let scene = self.scenes.scene(&self.world);
-            self.camera.step(&scene, &tool, now)
+            self.camera.step_rendering(&scene, &tool, now, render_frame)
         } else {
-            self.camera.step(&self.no_scene, &tool, now)
+            self.camera
+                .step_rendering(&self.no_scene, &tool, now, render_frame)
         };
         if self.steps.is_multiple_of(self.steps_per_metric) {
             self.meter.push(tool.translation.vector);
