@@ -169,6 +169,7 @@ impl Scan {
     /// Takes in one record at byte `pos` (a record inside a chunk reports its chunk's `pos`).
     fn record(&mut self, record: Record<'_>, pos: usize) -> Result<(), String> {
         match record {
+            Record::Schema { header, .. } if self.schemas.contains_key(&header.id) => {}
             Record::Schema { header, data } => {
                 let decoder = (header.encoding == "protobuf")
                     .then(|| SchemaDecoder::new(&header.name, &data));
@@ -181,6 +182,8 @@ impl Scan {
                     },
                 );
             }
+            // The summary section repeats the channels (and schemas): keep the first ones.
+            Record::Channel(channel) if self.summary.channels.contains_key(&channel.id) => {}
             Record::Channel(channel) => {
                 let schema = self.schemas.get(&channel.schema_id);
                 self.channel_schema.insert(channel.id, channel.schema_id);

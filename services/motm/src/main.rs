@@ -4,9 +4,11 @@ mod bench;
 mod bench_ipc;
 mod experiment;
 mod kin;
+mod log;
 mod plots;
 mod report;
 mod run;
+mod run_mcap;
 mod status;
 mod trial;
 
@@ -73,6 +75,8 @@ enum Command {
     Run(run::RunArgs),
     /// Show the live process table of a running stack.
     Status(status::StatusArgs),
+    /// Inspect (`info`) or validate (`check`) an MCAP log written by `motm run --mcap`.
+    Log(log::LogArgs),
 }
 
 fn main() -> ExitCode {
@@ -86,6 +90,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => experiment::run(&config_dir, &args),
         Command::Run(args) => run::run(&config_dir, &args),
         Command::Status(args) => status::run(&args),
+        Command::Log(args) => log::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

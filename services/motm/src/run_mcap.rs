@@ -1,0 +1,107 @@
+//! `motm run --mcap FILE`: the logger process beside the stack. It is started before the
+//! supervisor (it attaches to each service as it appears) and stopped before it (SIGTERM: the
+//! logger writes its last chunk and the summary), so the file covers the whole run.
+
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use motm_supervisor::binaries;
+
+use crate::CliError;
+
+/// Name of the logger binary.
+const LOGGER: &str = "logger";
+
+/// Makes `command`'s process get SIGTERM when this process exits, so no child outlives a
+/// `motm run` that was killed.
+pub fn exit_with_parent(command: &mut Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: only async-signal-safe calls between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("motm run exited"));
+            }
+            Ok(())
+        });
+    }
+}
+
+/// The running logger.
+pub struct LoggerProcess {
+    child: Child,
+}
+
+impl LoggerProcess {
+    /// Starts `logger --out <out>` from `bin_dir` on iceoryx2 prefix `prefix` (building it with
+    /// `$CARGO` when it is missing and `motm` runs through Cargo).
+    pub fn start(
+        bin_dir: &Path,
+        prefix: &str,
+        out: &Path,
+        config_dir: &Path,
+        robot: &str,
+        scenario: &Path,
+    ) -> Result<Self, CliError> {
+        if !binaries::missing(bin_dir, [LOGGER]).is_empty()
+            && let Some(cargo) = std::env::var_os("CARGO")
+            && let Err(e) =
+                binaries::cargo_build(Path::new(&cargo), bin_dir, &["motm-logger".to_string()])
+        {
+            eprintln!("motm run: {e}");
+        }
+        let mut command = Command::new(binaries::binary_path(bin_dir, LOGGER));
+        command
+            .arg("--out")
+            .arg(out)
+            .arg("--config-dir")
+            .arg(config_dir)
+            .arg("--robot")
+            .arg(robot)
+            .arg("--scenario")
+            .arg(scenario)
+            .env(motm_bus::PREFIX_ENV, prefix);
+        exit_with_parent(&mut command);
+        let child = command.spawn().map_err(|e| {
+            CliError::Failed(format!(
+                "cannot start the logger (`cargo build -p motm-logger`): {e}"
+            ))
+        })?;
+        Ok(Self { child })
+    }
+
+    /// Stops the logger (SIGTERM, SIGKILL after `grace`); an error when it did not finish the
+    /// file cleanly.
+    pub fn stop(mut self, grace: Duration) -> Result<(), CliError> {
+        if let Ok(None) = self.child.try_wait() {
+            // SAFETY: kill(2) has no memory-safety preconditions.
+            unsafe {
+                libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + grace;
+        let status = loop {
+            match self.child.try_wait() {
+                Ok(Some(status)) => break Some(status),
+                Ok(None) if Instant::now() < deadline => {
+                    // Shutdown only: a short sleep between reaping attempts.
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                _ => {
+                    let _ = self.child.kill();
+                    break self.child.wait().ok().filter(|_| false);
+                }
+            }
+        };
+        match status {
+            Some(s) if s.success() => Ok(()),
+            Some(s) => Err(CliError::Failed(format!("logger exited with {s}"))),
+            None => Err(CliError::Failed("logger did not stop; killed".into())),
+        }
+    }
+}
