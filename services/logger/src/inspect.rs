@@ -329,3 +329,83 @@ pub fn info_json(summary: &LogSummary) -> Value {
         "problems": summary.problems(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::foxglove as fg;
+    use crate::recorder::{Payload, Record};
+    use crate::sink::McapSink;
+    use prost::Message as _;
+
+    /// A finished log of `n` pose records and `n` JSON records, in chunks of about 2 kB.
+    fn log(n: u64) -> Vec<u8> {
+        let mut sink = McapSink::new(std::io::Cursor::new(Vec::new()), 2048, 1.0, 1_000).unwrap();
+        for i in 0..n {
+            let pose = fg::PoseInFrame {
+                timestamp: Some(fg::Timestamp::from_ns(i)),
+                frame_id: "world".into(),
+                pose: None,
+            };
+            sink.write(&Record {
+                topic: "/pose".into(),
+                stamp_ns: 1_000 * i,
+                payload: Payload::Protobuf(fg::POSE_IN_FRAME, pose.encode_to_vec()),
+            })
+            .unwrap();
+            sink.write(&Record {
+                topic: "/plot".into(),
+                stamp_ns: 1_000 * i,
+                payload: Payload::Json(serde_json::json!({ "i": i })),
+            })
+            .unwrap();
+        }
+        sink.finish().unwrap().into_inner()
+    }
+
+    #[test]
+    fn a_finished_log_is_complete_with_every_message_decoded() {
+        let bytes = log(200);
+        let summary = scan(&bytes).unwrap();
+        assert!(summary.complete);
+        assert_eq!(summary.truncated_bytes, 0);
+        assert!(summary.chunks > 2, "{summary:?}");
+        let pose = summary.channel("/pose").unwrap();
+        assert_eq!(pose.messages, 200);
+        assert_eq!(pose.schema_name, "foxglove.PoseInFrame");
+        assert_eq!(pose.first_log_time_ns, 1_000);
+        assert_eq!(pose.last_log_time_ns, 1_000 + 199_000);
+        assert_eq!(summary.channel("/plot").unwrap().schema_encoding, "jsonschema");
+        assert!(summary.problems().is_empty(), "{:?}", summary.problems());
+    }
+
+    #[test]
+    fn a_cut_off_log_is_read_up_to_its_last_whole_chunk() {
+        let bytes = log(200);
+        let whole = scan(&bytes).unwrap().messages();
+        // Cut in the middle of the data section, as a killed writer leaves it.
+        let cut = &bytes[..bytes.len() / 2];
+        let summary = scan(cut).unwrap();
+        assert!(!summary.complete);
+        assert!(summary.truncated_bytes > 0);
+        assert!(summary.messages() > 0 && summary.messages() < whole);
+        assert!(summary.problems().is_empty(), "{:?}", summary.problems());
+        // Only the magic: readable, but empty, which check rejects.
+        let empty = scan(&bytes[..mcap::MAGIC.len()]).unwrap();
+        assert_eq!(empty.messages(), 0);
+        assert_eq!(empty.problems(), vec!["no messages".to_string()]);
+    }
+
+    #[test]
+    fn corruption_inside_a_chunk_and_a_bad_magic_are_errors() {
+        let mut bytes = log(50);
+        // The first chunk's data starts well after its header; flip a byte inside it.
+        let chunk = bytes
+            .iter()
+            .position(|&b| b == 0x06)
+            .expect("a chunk opcode");
+        bytes[chunk + 120] ^= 0xff;
+        assert!(scan(&bytes).is_err());
+        assert!(scan(b"not an mcap file").is_err());
+    }
+}

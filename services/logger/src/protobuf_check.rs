@@ -175,8 +175,9 @@ mod tests {
         let schema = foxglove::POSE_IN_FRAME;
         let decoder = SchemaDecoder::new(schema.name, schema.descriptor).unwrap();
         let decoded = decoder.decode(&pose.encode_to_vec()).unwrap();
-        // timestamp(2) + frame_id + pose(position(3) + orientation(4) + 2) + 1 = 14 fields.
-        assert_eq!(decoded.fields, 14);
+        // timestamp + its 2 fields, frame_id, pose + position + its 3 fields, orientation + w
+        // (proto3 leaves the zero x, y, z out): 11 fields.
+        assert_eq!(decoded.fields, 11);
         // A RawImage is not a PoseInFrame: its field 2 is a fixed32, the schema's a string.
         let image = foxglove::RawImage {
             width: 2,

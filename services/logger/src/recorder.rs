@@ -507,3 +507,110 @@ impl Recorder {
         out.push(Record::protobuf(topics::SCENE, stamp_ns, fg::SCENE_UPDATE, &update));
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use motm_msgs::Message as _;
+
+    fn recorder() -> Recorder {
+        let dir = motm_core::resolve_config_dir(None);
+        let robot = Robot::load(&dir, "frankie").unwrap();
+        let scenario =
+            Scenario::from_file(&motm_sim::scenario_path(&dir, "exp1-dynamic")).unwrap();
+        Recorder::new(robot, SceneLayout::from_scenario(&scenario), LoggerConfig::default())
+    }
+
+    /// Composes a transform chain from `world` to `child`.
+    fn world_from(transforms: &fg::FrameTransforms, child: &str) -> Isometry3<f64> {
+        let t = transforms
+            .transforms
+            .iter()
+            .find(|t| t.child_frame_id == child)
+            .unwrap_or_else(|| panic!("no transform to {child}"));
+        let v = t.translation.unwrap();
+        let q = t.rotation.unwrap();
+        let local = Isometry3::from_parts(
+            nalgebra::Translation3::new(v.x, v.y, v.z),
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q.w, q.x, q.y, q.z)),
+        );
+        if t.parent_frame_id == frames::WORLD {
+            local
+        } else {
+            world_from(transforms, &t.parent_frame_id) * local
+        }
+    }
+
+    #[test]
+    fn the_transform_tree_goes_world_base_every_arm_joint_tool_and_ends_at_the_tool_pose() {
+        let r = recorder();
+        let base = BasePose::new(1.0, -0.5, 0.3);
+        let q = r.robot.config.ready_pose.clone();
+        let tf = r.transforms(&base, &q);
+        // world → base, one per arm joint, → tool.
+        assert_eq!(tf.transforms.len(), 2 + r.robot.arm_dof());
+        assert_eq!(tf.transforms[0].parent_frame_id, frames::WORLD);
+        assert_eq!(tf.transforms[0].child_frame_id, frames::BASE);
+        let tool = world_from(&tf, frames::TOOL);
+        let expected = r.robot.tool_pose(&base, &q);
+        assert!((tool.translation.vector - expected.translation.vector).norm() < 1e-9);
+        assert!(tool.rotation.angle_to(&expected.rotation) < 1e-9);
+    }
+
+    #[test]
+    fn joint_states_come_at_once_and_transforms_wait_for_odometry_then_follow_their_rate() {
+        let mut r = recorder();
+        let mut state = msgs::JointState::zeroed();
+        state.joint_count = r.robot.arm_dof() as u32;
+        state.position[..7].copy_from_slice(&r.robot.config.ready_pose);
+        state.header.stamp_ns = 1_000_000_000;
+        let mut out = Vec::new();
+        r.joint_state(&state, &mut out);
+        let topics_of = |out: &[Record]| out.iter().map(|r| r.topic.clone()).collect::<Vec<_>>();
+        assert_eq!(topics_of(&out), [topics::JOINT_STATES]);
+        let mut odometry = msgs::BaseOdometry::zeroed();
+        odometry.v = 0.3;
+        r.odometry(&odometry);
+        out.clear();
+        r.joint_state(&state, &mut out);
+        assert_eq!(
+            topics_of(&out),
+            [topics::JOINT_STATES, topics::TF, topics::KINEMATICS, topics::EE_POSE]
+        );
+        let Payload::Json(kinematics) = &out[2].payload else {
+            panic!("kinematics is JSON");
+        };
+        // Arm at rest, base at 0.3 m/s straight ahead: the tool moves at 0.3 m/s.
+        assert!((kinematics["ee_speed"].as_f64().unwrap() - 0.3).abs() < 1e-9);
+        assert!(kinematics["manipulability"].as_f64().unwrap() > 0.0);
+        // 1 ms later: within the 50 Hz transform period, joint states only.
+        state.header.stamp_ns += 1_000_000;
+        out.clear();
+        r.joint_state(&state, &mut out);
+        assert_eq!(topics_of(&out), [topics::JOINT_STATES]);
+        // The trail grew by one tool position and the stamps are the sample's own.
+        assert_eq!(r.trail.len(), 1);
+        assert!(out.iter().all(|rec| rec.stamp_ns == state.header.stamp_ns));
+    }
+
+    #[test]
+    fn every_fifth_camera_image_is_kept_as_rgb8() {
+        let mut r = recorder();
+        let mut image: Box<msgs::CameraImage> = Box::new(msgs::CameraImage::zeroed());
+        image.width = msgs::CAMERA_WIDTH as u32;
+        image.height = msgs::CAMERA_HEIGHT as u32;
+        let mut out = Vec::new();
+        for _ in 0..10 {
+            r.camera(&image, &mut out);
+        }
+        assert_eq!(out.len(), 2);
+        let Payload::Protobuf(schema, bytes) = &out[0].payload else {
+            panic!("images are protobuf");
+        };
+        assert_eq!(*schema, fg::RAW_IMAGE);
+        let decoded = <fg::RawImage as prost::Message>::decode(bytes.as_slice()).unwrap();
+        assert_eq!(decoded.encoding, "rgb8");
+        assert_eq!(decoded.step, 3 * msgs::CAMERA_WIDTH as u32);
+        assert_eq!(decoded.data.len(), msgs::CAMERA_IMAGE_BYTES);
+    }
+}
