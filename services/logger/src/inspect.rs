@@ -156,7 +156,10 @@ pub fn scan(bytes: &[u8]) -> Result<LogSummary, String> {
         pos += end;
         if opcode == FOOTER_OPCODE {
             if &bytes[pos..] != magic {
-                return Err(format!("footer at byte {} is not followed by the closing magic", pos - end));
+                return Err(format!(
+                    "footer at byte {} is not followed by the closing magic",
+                    pos - end
+                ));
             }
             scan.summary.complete = true;
             break;
@@ -211,7 +214,12 @@ impl Scan {
                     ));
                 };
                 let result = match (channel.message_encoding.as_str(), schema) {
-                    ("protobuf", Some(StoredSchema { decoder: Some(d), .. })) => d
+                    (
+                        "protobuf",
+                        Some(StoredSchema {
+                            decoder: Some(d), ..
+                        }),
+                    ) => d
                         .as_ref()
                         .map_err(Clone::clone)
                         .and_then(|d| d.decode(&data).map(|_| ())),
@@ -375,7 +383,10 @@ mod tests {
         assert_eq!(pose.schema_name, "foxglove.PoseInFrame");
         assert_eq!(pose.first_log_time_ns, 1_000);
         assert_eq!(pose.last_log_time_ns, 1_000 + 199_000);
-        assert_eq!(summary.channel("/plot").unwrap().schema_encoding, "jsonschema");
+        assert_eq!(
+            summary.channel("/plot").unwrap().schema_encoding,
+            "jsonschema"
+        );
         assert!(summary.problems().is_empty(), "{:?}", summary.problems());
     }
 

@@ -134,7 +134,12 @@ impl<M: Message> Source for Tap<M> {
 }
 
 /// Logs a sample on its JSON channel only.
-fn raw<M: Message + ToJson>(recorder: &mut Recorder, service: &str, sample: &M, out: &mut Vec<Record>) {
+fn raw<M: Message + ToJson>(
+    recorder: &mut Recorder,
+    service: &str,
+    sample: &M,
+    out: &mut Vec<Record>,
+) {
     recorder.raw(service, sample, out);
 }
 
@@ -216,16 +221,19 @@ fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
     let config_dir = motm_core::resolve_config_dir(cli.config_dir.as_deref());
     let config: LoggerConfig = match &cli.settings {
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| format!("{}: {e}", path.display()))?;
+            let text =
+                std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
             toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?
         }
         None => LoggerConfig::default(),
     };
     if !(config.poll_rate_hz > 0.0 && config.tf_rate_hz > 0.0 && config.scene_rate_hz > 0.0) {
-        return Err("logger settings: poll_rate_hz, tf_rate_hz and scene_rate_hz must be > 0".into());
+        return Err(
+            "logger settings: poll_rate_hz, tf_rate_hz and scene_rate_hz must be > 0".into(),
+        );
     }
-    let robot = motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
+    let robot =
+        motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
     let layout = match &cli.scenario {
         Some(name) => {
             let path = motm_sim::scenario_path(&config_dir, name);
@@ -264,8 +272,13 @@ fn main() {
 /// Taps the bus until SIGTERM/SIGINT, then finishes the file.
 fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), String> {
     let file = File::create(&cli.out).map_err(|e| format!("{}: {e}", cli.out.display()))?;
-    let mut sink = McapSink::new(file, config.chunk_bytes, config.flush_interval_s, unix_offset_ns())
-        .map_err(|e| format!("{}: {e}", cli.out.display()))?;
+    let mut sink = McapSink::new(
+        file,
+        config.chunk_bytes,
+        config.flush_interval_s,
+        unix_offset_ns(),
+    )
+    .map_err(|e| format!("{}: {e}", cli.out.display()))?;
     let bus = Bus::open(PROCESS).map_err(|e| e.to_string())?;
     let mut taps = fixed_taps();
     let mut heartbeats = BTreeSet::new();

@@ -49,7 +49,9 @@ impl SchemaDecoder {
         }
         let root = format!(".{name}");
         if !messages.contains_key(&root) {
-            return Err(format!("schema {name}: the descriptor set does not define it"));
+            return Err(format!(
+                "schema {name}: the descriptor set does not define it"
+            ));
         }
         Ok(Self { messages, root })
     }
@@ -84,7 +86,9 @@ impl SchemaDecoder {
                 .field
                 .iter()
                 .find(|f| f.number == Some(number))
-                .ok_or_else(|| format!("{type_name}: field number {number} is not in the schema"))?;
+                .ok_or_else(|| {
+                    format!("{type_name}: field number {number} is not in the schema")
+                })?;
             let name = field.name();
             let kind = field.r#type();
             let expected = wire_type(kind);
@@ -113,7 +117,11 @@ impl SchemaDecoder {
 }
 
 /// Adds `message` and its nested types under `prefix` (a package or outer type name).
-fn register(messages: &mut HashMap<String, DescriptorProto>, prefix: &str, message: &DescriptorProto) {
+fn register(
+    messages: &mut HashMap<String, DescriptorProto>,
+    prefix: &str,
+    message: &DescriptorProto,
+) {
     let full = format!("{prefix}.{}", message.name());
     for nested in &message.nested_type {
         register(messages, &full, nested);
@@ -168,8 +176,17 @@ mod tests {
             timestamp: Some(foxglove::Timestamp::from_ns(1_500_000_000)),
             frame_id: "world".into(),
             pose: Some(foxglove::Pose {
-                position: Some(foxglove::Vector3 { x: 1.0, y: 2.0, z: 3.0 }),
-                orientation: Some(foxglove::Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }),
+                position: Some(foxglove::Vector3 {
+                    x: 1.0,
+                    y: 2.0,
+                    z: 3.0,
+                }),
+                orientation: Some(foxglove::Quaternion {
+                    x: 0.0,
+                    y: 0.0,
+                    z: 0.0,
+                    w: 1.0,
+                }),
             }),
         };
         let schema = foxglove::POSE_IN_FRAME;

@@ -111,7 +111,12 @@ pub struct Record {
 
 impl Record {
     /// A protobuf record.
-    fn protobuf(topic: &str, stamp_ns: u64, schema: fg::Schema, message: &impl prost::Message) -> Self {
+    fn protobuf(
+        topic: &str,
+        stamp_ns: u64,
+        schema: fg::Schema,
+        message: &impl prost::Message,
+    ) -> Self {
         Self {
             topic: topic.to_owned(),
             stamp_ns,
@@ -184,12 +189,21 @@ fn due(last_ns: Option<u64>, now_ns: u64, rate_hz: f64) -> bool {
 
 /// A foxglove vector.
 fn vector(v: &nalgebra::Vector3<f64>) -> fg::Vector3 {
-    fg::Vector3 { x: v.x, y: v.y, z: v.z }
+    fg::Vector3 {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
 }
 
 /// A foxglove quaternion.
 fn quaternion(q: &UnitQuaternion<f64>) -> fg::Quaternion {
-    fg::Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
+    fg::Quaternion {
+        x: q.i,
+        y: q.j,
+        z: q.k,
+        w: q.w,
+    }
 }
 
 /// A foxglove pose.
@@ -217,16 +231,29 @@ const fn rgba(r: f64, g: f64, b: f64, a: f64) -> Option<fg::Color> {
 fn cube(centre: [f64; 3], size: [f64; 3], color: Option<fg::Color>) -> fg::CubePrimitive {
     fg::CubePrimitive {
         pose: Some(planar_pose(centre, 0.0)),
-        size: Some(fg::Vector3 { x: size[0], y: size[1], z: size[2] }),
+        size: Some(fg::Vector3 {
+            x: size[0],
+            y: size[1],
+            z: size[2],
+        }),
         color,
     }
 }
 
 /// An arrow from `tail` with heading `yaw` and pitch `pitch`.
-fn arrow(tail: [f64; 3], rotation: UnitQuaternion<f64>, length: f64, color: Option<fg::Color>) -> fg::ArrowPrimitive {
+fn arrow(
+    tail: [f64; 3],
+    rotation: UnitQuaternion<f64>,
+    length: f64,
+    color: Option<fg::Color>,
+) -> fg::ArrowPrimitive {
     fg::ArrowPrimitive {
         pose: Some(fg::Pose {
-            position: Some(fg::Vector3 { x: tail[0], y: tail[1], z: tail[2] }),
+            position: Some(fg::Vector3 {
+                x: tail[0],
+                y: tail[1],
+                z: tail[2],
+            }),
             orientation: Some(quaternion(&rotation)),
         }),
         shaft_length: length * 0.8,
@@ -296,7 +323,12 @@ impl Recorder {
             frame_id: frames::WORLD.into(),
             pose: Some(planar_pose(sample.position, 0.0)),
         };
-        out.push(Record::protobuf(topics::TARGET_POSE, stamp, fg::POSE_IN_FRAME, &message));
+        out.push(Record::protobuf(
+            topics::TARGET_POSE,
+            stamp,
+            fg::POSE_IN_FRAME,
+            &message,
+        ));
     }
 
     /// Arm joint state: the joint states record, and (at `tf_rate_hz`, once odometry is
@@ -319,7 +351,12 @@ impl Recorder {
             timestamp: None,
             joints,
         };
-        out.push(Record::protobuf(topics::JOINT_STATES, stamp, fg::JOINT_STATES, &states));
+        out.push(Record::protobuf(
+            topics::JOINT_STATES,
+            stamp,
+            fg::JOINT_STATES,
+            &states,
+        ));
         let Some(odometry) = self.odometry else {
             return;
         };
@@ -362,7 +399,12 @@ impl Recorder {
             frame_id: frames::WORLD.into(),
             pose: Some(pose(&fk.tool_pose)),
         };
-        out.push(Record::protobuf(topics::EE_POSE, stamp, fg::POSE_IN_FRAME, &ee));
+        out.push(Record::protobuf(
+            topics::EE_POSE,
+            stamp,
+            fg::POSE_IN_FRAME,
+            &ee,
+        ));
         let p = fk.tool_pose.translation.vector;
         if self.trail.len() == self.config.trail_points.max(1) {
             self.trail.pop_front();
@@ -394,7 +436,11 @@ impl Recorder {
                 pending = Isometry3::identity();
             }
         }
-        transforms.push(transform(&parent, frames::TOOL, &(pending * self.robot.chain.tool)));
+        transforms.push(transform(
+            &parent,
+            frames::TOOL,
+            &(pending * self.robot.chain.tool),
+        ));
         fg::FrameTransforms { transforms }
     }
 
@@ -438,24 +484,36 @@ impl Recorder {
         };
         let mut fixtures = entity("fixtures");
         for (centre, size) in &self.layout.platforms {
-            fixtures.cubes.push(cube(*centre, *size, rgba(0.55, 0.45, 0.35, 1.0)));
+            fixtures
+                .cubes
+                .push(cube(*centre, *size, rgba(0.55, 0.45, 0.35, 1.0)));
         }
         for (centre, size) in &self.layout.containers {
-            fixtures.cubes.push(cube(*centre, *size, rgba(0.2, 0.4, 0.8, 0.5)));
+            fixtures
+                .cubes
+                .push(cube(*centre, *size, rgba(0.2, 0.4, 0.8, 0.5)));
         }
         let mut cubes = entity("cubes");
         if let Some(truth) = &self.truth {
             let count = (truth.object_count as usize).min(msgs::MAX_SIM_OBJECTS);
             let side = self.layout.cube_size.max(0.01);
             for p in truth.object_positions[..3 * count].chunks_exact(3) {
-                cubes.cubes.push(cube([p[0], p[1], p[2]], [side; 3], rgba(0.9, 0.1, 0.1, 1.0)));
+                cubes.cubes.push(cube(
+                    [p[0], p[1], p[2]],
+                    [side; 3],
+                    rgba(0.9, 0.1, 0.1, 1.0),
+                ));
             }
         }
         let mut target = entity("target_estimate");
         if let Some(t) = &self.target {
             target.spheres.push(fg::SpherePrimitive {
                 pose: Some(planar_pose(t.position, 0.0)),
-                size: Some(fg::Vector3 { x: 0.05, y: 0.05, z: 0.05 }),
+                size: Some(fg::Vector3 {
+                    x: 0.05,
+                    y: 0.05,
+                    z: 0.05,
+                }),
                 color: rgba(1.0, 0.8, 0.0, 0.6),
             });
         }
@@ -485,7 +543,11 @@ impl Recorder {
             points: self
                 .trail
                 .iter()
-                .map(|p| fg::Point3 { x: p[0], y: p[1], z: p[2] })
+                .map(|p| fg::Point3 {
+                    x: p[0],
+                    y: p[1],
+                    z: p[2],
+                })
                 .collect(),
             color: rgba(0.9, 0.9, 0.9, 0.8),
         });
@@ -498,13 +560,23 @@ impl Recorder {
             {
                 let t = tool.translation.vector;
                 // 1 s of motion at the commanded speed.
-                reacher.arrows.push(arrow([t.x, t.y, t.z], rotation, speed, rgba(1.0, 0.4, 0.0, 1.0)));
+                reacher.arrows.push(arrow(
+                    [t.x, t.y, t.z],
+                    rotation,
+                    speed,
+                    rgba(1.0, 0.4, 0.0, 1.0),
+                ));
             }
         }
         let update = fg::SceneUpdate {
             entities: vec![fixtures, cubes, target, approach, reacher],
         };
-        out.push(Record::protobuf(topics::SCENE, stamp_ns, fg::SCENE_UPDATE, &update));
+        out.push(Record::protobuf(
+            topics::SCENE,
+            stamp_ns,
+            fg::SCENE_UPDATE,
+            &update,
+        ));
     }
 }
 
@@ -516,9 +588,12 @@ mod tests {
     fn recorder() -> Recorder {
         let dir = motm_core::resolve_config_dir(None);
         let robot = Robot::load(&dir, "frankie").unwrap();
-        let scenario =
-            Scenario::from_file(&motm_sim::scenario_path(&dir, "exp1-dynamic")).unwrap();
-        Recorder::new(robot, SceneLayout::from_scenario(&scenario), LoggerConfig::default())
+        let scenario = Scenario::from_file(&motm_sim::scenario_path(&dir, "exp1-dynamic")).unwrap();
+        Recorder::new(
+            robot,
+            SceneLayout::from_scenario(&scenario),
+            LoggerConfig::default(),
+        )
     }
 
     /// Composes a transform chain from `world` to `child`.
@@ -575,7 +650,12 @@ mod tests {
         r.joint_state(&state, &mut out);
         assert_eq!(
             topics_of(&out),
-            [topics::JOINT_STATES, topics::TF, topics::KINEMATICS, topics::EE_POSE]
+            [
+                topics::JOINT_STATES,
+                topics::TF,
+                topics::KINEMATICS,
+                topics::EE_POSE
+            ]
         );
         let Payload::Json(kinematics) = &out[2].payload else {
             panic!("kinematics is JSON");

@@ -36,8 +36,8 @@ enum LogCommand {
 
 /// Reads and scans `file`: a missing or unreadable file is bad input, a corrupt one a failure.
 fn load(file: &Path) -> Result<LogSummary, CliError> {
-    let bytes = std::fs::read(file)
-        .map_err(|e| CliError::BadInput(format!("{}: {e}", file.display())))?;
+    let bytes =
+        std::fs::read(file).map_err(|e| CliError::BadInput(format!("{}: {e}", file.display())))?;
     inspect::scan(&bytes).map_err(|e| CliError::Failed(format!("{}: corrupt: {e}", file.display())))
 }
 
@@ -49,7 +49,10 @@ pub fn run(args: &LogArgs) -> Result<(), CliError> {
             if *json {
                 println!("{}", inspect::info_json(&summary));
             } else {
-                print!("{}", inspect::info_text(&file.display().to_string(), &summary));
+                print!(
+                    "{}",
+                    inspect::info_text(&file.display().to_string(), &summary)
+                );
             }
             Ok(())
         }
