@@ -447,7 +447,7 @@ impl Recorder {
     /// The camera image as a `foxglove.RawImage`, every `image_every`-th one.
     pub fn camera(&mut self, sample: &msgs::CameraImage, out: &mut Vec<Record>) {
         self.images_seen += 1;
-        if (self.images_seen - 1) % u64::from(self.config.image_every.max(1)) != 0 {
+        if !(self.images_seen - 1).is_multiple_of(u64::from(self.config.image_every.max(1))) {
             return;
         }
         let image = fg::RawImage {
