@@ -5,7 +5,7 @@
 //! settings), takes one subscriber slot per service, and the services overflow safely (a full
 //! queue drops its oldest sample, counted in `/logger/stats`). Memory stays bounded: samples
 //! are read in place and released at once, and at most one chunk is held before it is written.
-//! Services that appear later (a late start, a restart) are attached within half a second;
+//! Services that appear later (a late start, a restart) are attached within a second;
 //! heartbeat services are found by listing the prefix's services.
 
 use std::collections::BTreeSet;
@@ -24,8 +24,8 @@ use serde_json::json;
 /// Process (and heartbeat) name.
 const PROCESS: &str = "logger";
 
-/// How often missing services are looked for again, ns.
-const ATTACH_PERIOD_NS: u64 = 500_000_000;
+/// How often missing services are looked for again (and heartbeat services listed), ns.
+const ATTACH_PERIOD_NS: u64 = 1_000_000_000;
 
 /// How often `/logger/stats` is written, ns.
 const STATS_PERIOD_NS: u64 = 1_000_000_000;
@@ -227,10 +227,21 @@ fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
         }
         None => LoggerConfig::default(),
     };
-    if !(config.poll_rate_hz > 0.0 && config.tf_rate_hz > 0.0 && config.scene_rate_hz > 0.0) {
-        return Err(
-            "logger settings: poll_rate_hz, tf_rate_hz and scene_rate_hz must be > 0".into(),
-        );
+    for (key, value) in [
+        ("poll_rate_hz", config.poll_rate_hz),
+        ("raw_rate_hz", config.raw_rate_hz),
+        ("tf_rate_hz", config.tf_rate_hz),
+        ("scene_rate_hz", config.scene_rate_hz),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(format!("logger settings: {key} must be > 0, got {value}"));
+        }
+    }
+    if !(0..=19).contains(&config.nice) {
+        return Err(format!(
+            "logger settings: nice must be in 0..=19, got {}",
+            config.nice
+        ));
     }
     let robot =
         motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
@@ -263,6 +274,11 @@ fn main() {
             std::process::exit(2);
         }
     };
+    // SAFETY: setpriority(2) has no memory-safety preconditions. A failure leaves the default
+    // priority, which is only less polite.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, config.nice);
+    }
     if let Err(e) = run(&cli, &config, &mut recorder) {
         eprintln!("{PROCESS}: {e}");
         std::process::exit(1);

@@ -4,7 +4,7 @@
 //! the camera a decimated `foxglove.RawImage`. Each record carries the stamp of the sample it
 //! comes from (the header's `CLOCK_MONOTONIC` stamp); nothing here reads a clock.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 
 use motm_core::kinematics::BasePose;
 use motm_core::robot::Robot;
@@ -56,10 +56,18 @@ pub mod frames {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LoggerConfig {
-    /// How often the logger drains its subscribers, Hz. 500 Hz keeps up with the 1 kHz
-    /// services within their 4-sample queues; a slower poll loses (and counts) samples, it
-    /// never slows a publisher.
+    /// How often the logger drains its subscribers, Hz. 250 Hz reads every sample of the
+    /// control-rate (200 Hz) services; the 1 kHz services overflow their 4-sample queues now
+    /// and then (counted in `/logger/stats`), which never slows a publisher.
     pub poll_rate_hz: f64,
+    /// Highest rate of a JSON service channel and of the joint states, Hz: faster services are
+    /// thinned to it. 250 Hz keeps every sample of the 200 Hz control services (every QP
+    /// solve, command and twist) and every 4th of the 1 kHz hardware, driver and watchdog
+    /// streams, which keeps the logger's CPU use small.
+    pub raw_rate_hz: f64,
+    /// Scheduling niceness the logger gives itself (0..=19): higher yields the CPU to the
+    /// control processes first.
+    pub nice: i32,
     /// Transforms, tool pose and kinematics, Hz (50 Hz: smooth in the 3D view, a few kB/s).
     pub tf_rate_hz: f64,
     /// Scene updates, Hz.
@@ -78,7 +86,9 @@ pub struct LoggerConfig {
 impl Default for LoggerConfig {
     fn default() -> Self {
         Self {
-            poll_rate_hz: 500.0,
+            poll_rate_hz: 250.0,
+            raw_rate_hz: 250.0,
+            nice: 10,
             tf_rate_hz: 50.0,
             scene_rate_hz: 10.0,
             image_every: 5,
@@ -180,6 +190,8 @@ pub struct Recorder {
     last_tf_ns: Option<u64>,
     last_scene_ns: Option<u64>,
     images_seen: u64,
+    /// Stamp of the last record written per thinned topic ([`LoggerConfig::raw_rate_hz`]).
+    last_raw_ns: HashMap<String, u64>,
 }
 
 /// Whether at least `1 / rate_hz` passed between `last_ns` and `now_ns`.
@@ -281,16 +293,42 @@ impl Recorder {
             last_tf_ns: None,
             last_scene_ns: None,
             images_seen: 0,
+            last_raw_ns: HashMap::new(),
         }
     }
 
-    /// The JSON record of a sample on its service's channel (`/` + the service name).
-    pub fn raw<M: msgs::Message + ToJson>(&self, service: &str, sample: &M, out: &mut Vec<Record>) {
-        out.push(Record {
-            topic: format!("/{service}"),
-            stamp_ns: sample.header().stamp_ns,
-            payload: Payload::Json(sample.to_json()),
-        });
+    /// Whether a record on `topic` stamped `stamp_ns` is kept under
+    /// [`LoggerConfig::raw_rate_hz`].
+    fn admit(&mut self, topic: &str, stamp_ns: u64) -> bool {
+        let last = self.last_raw_ns.get(topic).copied();
+        if !due(last, stamp_ns, self.config.raw_rate_hz) {
+            return false;
+        }
+        match self.last_raw_ns.get_mut(topic) {
+            Some(last) => *last = stamp_ns,
+            None => {
+                self.last_raw_ns.insert(topic.to_owned(), stamp_ns);
+            }
+        }
+        true
+    }
+
+    /// The JSON record of a sample on its service's channel (`/` + the service name), at most
+    /// at [`LoggerConfig::raw_rate_hz`].
+    pub fn raw<M: msgs::Message + ToJson>(
+        &mut self,
+        service: &str,
+        sample: &M,
+        out: &mut Vec<Record>,
+    ) {
+        let stamp_ns = sample.header().stamp_ns;
+        if self.admit(service, stamp_ns) {
+            out.push(Record {
+                topic: format!("/{service}"),
+                stamp_ns,
+                payload: Payload::Json(sample.to_json()),
+            });
+        }
     }
 
     /// Base odometry: kept for the transforms.
@@ -331,32 +369,14 @@ impl Recorder {
         ));
     }
 
-    /// Arm joint state: the joint states record, and (at `tf_rate_hz`, once odometry is
-    /// known) the transforms, the tool pose and the kinematics.
+    /// Arm joint state: the joint states record (at most at `raw_rate_hz`), and (at
+    /// `tf_rate_hz`, once odometry is known) the transforms, the tool pose and the kinematics.
     pub fn joint_state(&mut self, sample: &msgs::JointState, out: &mut Vec<Record>) {
         let stamp = sample.header.stamp_ns;
         let n = (sample.joint_count as usize).min(self.robot.arm_dof());
-        let joints = self
-            .robot
-            .arm_joints()
-            .take(n)
-            .enumerate()
-            .map(|(i, joint)| fg::JointState {
-                name: joint.name.clone(),
-                position: Some(sample.position[i]),
-                velocity: Some(sample.velocity[i]),
-            })
-            .collect();
-        let states = fg::JointStates {
-            timestamp: None,
-            joints,
-        };
-        out.push(Record::protobuf(
-            topics::JOINT_STATES,
-            stamp,
-            fg::JOINT_STATES,
-            &states,
-        ));
+        if self.admit(topics::JOINT_STATES, stamp) {
+            self.joint_states(sample, n, out);
+        }
         let Some(odometry) = self.odometry else {
             return;
         };
@@ -411,6 +431,31 @@ impl Recorder {
         }
         self.trail.push_back([p.x, p.y, p.z]);
         self.tool = Some(fk.tool_pose);
+    }
+
+    /// The joint states record of the first `n` joints of `sample`.
+    fn joint_states(&self, sample: &msgs::JointState, n: usize, out: &mut Vec<Record>) {
+        let joints = self
+            .robot
+            .arm_joints()
+            .take(n)
+            .enumerate()
+            .map(|(i, joint)| fg::JointState {
+                name: joint.name.clone(),
+                position: Some(sample.position[i]),
+                velocity: Some(sample.velocity[i]),
+            })
+            .collect();
+        let states = fg::JointStates {
+            timestamp: None,
+            joints,
+        };
+        out.push(Record::protobuf(
+            topics::JOINT_STATES,
+            sample.header.stamp_ns,
+            fg::JOINT_STATES,
+            &states,
+        ));
     }
 
     /// World → base → each arm joint's frame (named after the joint) → tool.
@@ -647,6 +692,7 @@ mod tests {
         odometry.v = 0.3;
         r.odometry(&odometry);
         out.clear();
+        state.header.stamp_ns += 10_000_000;
         r.joint_state(&state, &mut out);
         assert_eq!(
             topics_of(&out),
@@ -657,20 +703,26 @@ mod tests {
                 topics::EE_POSE
             ]
         );
+        // Every record carries the joint state's own stamp.
+        assert!(out.iter().all(|rec| rec.stamp_ns == state.header.stamp_ns));
         let Payload::Json(kinematics) = &out[2].payload else {
             panic!("kinematics is JSON");
         };
         // Arm at rest, base at 0.3 m/s straight ahead: the tool moves at 0.3 m/s.
         assert!((kinematics["ee_speed"].as_f64().unwrap() - 0.3).abs() < 1e-9);
         assert!(kinematics["manipulability"].as_f64().unwrap() > 0.0);
-        // 1 ms later: within the 50 Hz transform period, joint states only.
-        state.header.stamp_ns += 1_000_000;
+        // 5 ms later: past the 250 Hz joint-state period, within the 50 Hz transform period.
+        state.header.stamp_ns += 5_000_000;
         out.clear();
         r.joint_state(&state, &mut out);
         assert_eq!(topics_of(&out), [topics::JOINT_STATES]);
-        // The trail grew by one tool position and the stamps are the sample's own.
+        // 1 ms later still: within both periods, nothing.
+        state.header.stamp_ns += 1_000_000;
+        out.clear();
+        r.joint_state(&state, &mut out);
+        assert!(out.is_empty());
+        // The trail grew by one tool position.
         assert_eq!(r.trail.len(), 1);
-        assert!(out.iter().all(|rec| rec.stamp_ns == state.header.stamp_ns));
     }
 
     #[test]

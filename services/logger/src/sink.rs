@@ -5,9 +5,10 @@
 //!
 //! Log times are the records' own stamps moved from `CLOCK_MONOTONIC` to Unix time by one
 //! offset taken at start (so Foxglove shows wall-clock times and the spacing of the samples is
-//! exactly theirs); the publish time is the same. A stamp earlier than the channel's previous
+//! exactly theirs). A stamp earlier than the channel's previous
 //! one (a restarted publisher whose first sample predates the last one logged) is raised to
-//! it, so log times never decrease within a channel; such raises are counted.
+//! it, so log times never decrease within a channel; such raises are counted, and the publish
+//! time keeps the sample's own stamp.
 
 use std::collections::HashMap;
 use std::io::{Seek, Write};
@@ -104,7 +105,7 @@ impl<W: Write + Seek> McapSink<W> {
                 channel_id: channel.id,
                 sequence: channel.sequence,
                 log_time,
-                publish_time: log_time,
+                publish_time: unix_ns,
             },
             &data,
         )?;

@@ -302,8 +302,12 @@ fn signal(pid: u32, sig: libc::c_int) {
     }
 }
 
-/// Stops the supervisor (which stops the stack): SIGTERM, then SIGKILL after `grace`.
-fn stop_supervisor(supervisor: &mut Child, grace: Duration) -> Option<std::process::ExitStatus> {
+/// Stops the supervisor (which stops the stack): SIGTERM, then SIGKILL after `grace`. The
+/// logger is stopped the same way.
+pub(crate) fn stop_supervisor(
+    supervisor: &mut Child,
+    grace: Duration,
+) -> Option<std::process::ExitStatus> {
     if let Ok(Some(status)) = supervisor.try_wait() {
         return Some(status);
     }

@@ -5,7 +5,7 @@
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use motm_supervisor::binaries;
 
@@ -78,30 +78,10 @@ impl LoggerProcess {
     /// Stops the logger (SIGTERM, SIGKILL after `grace`); an error when it did not finish the
     /// file cleanly.
     pub fn stop(mut self, grace: Duration) -> Result<(), CliError> {
-        if let Ok(None) = self.child.try_wait() {
-            // SAFETY: kill(2) has no memory-safety preconditions.
-            unsafe {
-                libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM);
-            }
-        }
-        let deadline = Instant::now() + grace;
-        let status = loop {
-            match self.child.try_wait() {
-                Ok(Some(status)) => break Some(status),
-                Ok(None) if Instant::now() < deadline => {
-                    // Shutdown only: a short sleep between reaping attempts.
-                    std::thread::sleep(Duration::from_millis(10));
-                }
-                _ => {
-                    let _ = self.child.kill();
-                    break self.child.wait().ok().filter(|_| false);
-                }
-            }
-        };
-        match status {
+        match crate::run::stop_supervisor(&mut self.child, grace) {
             Some(s) if s.success() => Ok(()),
             Some(s) => Err(CliError::Failed(format!("logger exited with {s}"))),
-            None => Err(CliError::Failed("logger did not stop; killed".into())),
+            None => Err(CliError::Failed("logger did not stop".into())),
         }
     }
 }
