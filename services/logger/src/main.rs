@@ -237,12 +237,6 @@ fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
             return Err(format!("logger settings: {key} must be > 0, got {value}"));
         }
     }
-    if !(0..=19).contains(&config.nice) {
-        return Err(format!(
-            "logger settings: nice must be in 0..=19, got {}",
-            config.nice
-        ));
-    }
     let robot =
         motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
     let layout = match &cli.scenario {
@@ -274,10 +268,13 @@ fn main() {
             std::process::exit(2);
         }
     };
-    // SAFETY: setpriority(2) has no memory-safety preconditions. A failure leaves the default
-    // priority, which is only less polite.
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, 0, config.nice);
+    if config.idle_scheduling {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: sched_setscheduler(2) reads `param` only. A failure leaves the normal
+        // policy, which is only less polite.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
+            eprintln!("{PROCESS}: cannot switch to SCHED_IDLE; running at normal priority");
+        }
     }
     if let Err(e) = run(&cli, &config, &mut recorder) {
         eprintln!("{PROCESS}: {e}");

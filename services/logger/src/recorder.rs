@@ -65,9 +65,10 @@ pub struct LoggerConfig {
     /// solve, command and twist) and every 4th of the 1 kHz hardware, driver and watchdog
     /// streams, which keeps the logger's CPU use small.
     pub raw_rate_hz: f64,
-    /// Scheduling niceness the logger gives itself (0..=19): higher yields the CPU to the
-    /// control processes first.
-    pub nice: i32,
+    /// Whether the logger runs under Linux's `SCHED_IDLE` policy: it then gets a CPU only
+    /// when no normal process wants one, so it never delays a control process; under full
+    /// load its queues overflow instead (counted). `false` runs it at normal priority.
+    pub idle_scheduling: bool,
     /// Transforms, tool pose and kinematics, Hz (50 Hz: smooth in the 3D view, a few kB/s).
     pub tf_rate_hz: f64,
     /// Scene updates, Hz.
@@ -88,7 +89,7 @@ impl Default for LoggerConfig {
         Self {
             poll_rate_hz: 250.0,
             raw_rate_hz: 250.0,
-            nice: 10,
+            idle_scheduling: true,
             tf_rate_hz: 50.0,
             scene_rate_hz: 10.0,
             image_every: 5,
