@@ -48,6 +48,9 @@ impl LoggerProcess {
         robot: &str,
         scenario: &Path,
     ) -> Result<Self, CliError> {
+        // A path that cannot be written is bad input, found before the stack starts.
+        std::fs::File::create(out)
+            .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
         if !binaries::missing(bin_dir, [LOGGER]).is_empty()
             && let Some(cargo) = std::env::var_os("CARGO")
             && let Err(e) =
