@@ -5,9 +5,11 @@ mod bench_ipc;
 mod experiment;
 mod faults;
 mod kin;
+mod log;
 mod plots;
 mod report;
 mod run;
+mod run_mcap;
 mod status;
 mod swap;
 mod trial;
@@ -77,6 +79,8 @@ enum Command {
     Status(status::StatusArgs),
     /// Hot-swap a controller process of a running stack (e.g. `motm swap final-phase press-button`).
     Swap(swap::SwapArgs),
+    /// Inspect (`info`) or validate (`check`) an MCAP log written by `motm run --mcap`.
+    Log(log::LogArgs),
 }
 
 fn main() -> ExitCode {
@@ -91,6 +95,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run::run(&config_dir, &args),
         Command::Status(args) => status::run(&args),
         Command::Swap(args) => swap::run(&args),
+        Command::Log(args) => log::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

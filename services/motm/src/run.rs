@@ -7,7 +7,6 @@
 //! tests can go on side by side. The prefix is recorded in `<tmp>/motm-stacks/` while the run
 //! lasts, for `motm status`.
 
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
@@ -59,6 +58,9 @@ pub struct RunArgs {
     /// after the stack started), e.g. `final-phase:press-button@12`; may be repeated.
     #[arg(long = "swap", value_name = "PROCESS:VARIANT@SECONDS")]
     pub swaps: Vec<String>,
+    /// Also log every service of the run to this MCAP file (the `logger` process).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
 }
 
 /// One process's figures, from its last heartbeat and the supervisor's table.
@@ -324,8 +326,12 @@ fn signal(pid: u32, sig: libc::c_int) {
     }
 }
 
-/// Stops the supervisor (which stops the stack): SIGTERM, then SIGKILL after `grace`.
-fn stop_supervisor(supervisor: &mut Child, grace: Duration) -> Option<std::process::ExitStatus> {
+/// Stops the supervisor (which stops the stack): SIGTERM, then SIGKILL after `grace`. The
+/// logger is stopped the same way.
+pub(crate) fn stop_supervisor(
+    supervisor: &mut Child,
+    grace: Duration,
+) -> Option<std::process::ExitStatus> {
     if let Ok(Some(status)) = supervisor.try_wait() {
         return Some(status);
     }
@@ -424,25 +430,27 @@ pub fn run_stack(
         .arg("--bin-dir")
         .arg(&bin_dir)
         .env(motm_bus::PREFIX_ENV, &ipc.prefix);
-    let parent = std::process::id() as libc::pid_t;
-    // SAFETY: only async-signal-safe calls between fork and exec.
-    unsafe {
-        command.pre_exec(move || {
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            if libc::getppid() != parent {
-                return Err(std::io::Error::other("motm run exited"));
-            }
-            Ok(())
-        });
-    }
+    crate::run_mcap::exit_with_parent(&mut command);
+    let logger = match &args.mcap {
+        Some(out) => Some(crate::run_mcap::LoggerProcess::start(
+            &bin_dir,
+            &ipc.prefix,
+            out,
+            config_dir,
+            &stack.robot,
+            &scenario_path,
+        )?),
+        None => None,
+    };
     let mut supervisor = command
         .spawn()
         .map_err(|e| CliError::Failed(format!("cannot start the supervisor: {e}")))?;
 
     let mut names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
     names.push("supervisor".into());
+    if args.mcap.is_some() {
+        names.push("logger".into());
+    }
     let watched = (|| -> Result<_, motm_bus::BusError> {
         let bus = Bus::open_with("motm-run", &ipc)?;
         let mut watch = Watch::new(&bus, &names, measure_latency)?;
@@ -516,6 +524,7 @@ pub fn run_stack(
         ))
     })();
     let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
+    let logger_exit = logger.map(|l| l.stop(grace));
     let supervisor_exit = stop_supervisor(&mut supervisor, grace);
     // Every process of the prefix has exited: clean what dead ones left, then the prefix itself.
     let _ = motm_bus::cleanup_dead_nodes(&ipc);
@@ -525,6 +534,7 @@ pub fn run_stack(
     let _ = std::fs::remove_file(&registry);
     let (trial, latencies, processes, drivers, faults_injected, safe_stops, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
+    logger_exit.transpose()?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }

@@ -388,13 +388,57 @@ impl<M: Message> Subscriber<M> {
         } else {
             None
         };
-        let ports = Rc::new(SubscriberPorts {
-            subscriber,
-            listener,
-        });
+        Ok(Self::from_ports(
+            bus,
+            name,
+            SubscriberPorts {
+                subscriber,
+                listener,
+            },
+        ))
+    }
+
+    /// Attaches a subscriber to the existing service `name` without creating it and without
+    /// asking for any service setting, so a tap (the logger) never changes a service or fails
+    /// on the settings its creator chose. `Ok(None)` when the service does not exist (yet).
+    /// The subscriber takes one of the service's subscriber slots; its queue has the service's
+    /// buffer size and overflows safely (the publisher overwrites the oldest sample).
+    pub fn attach(bus: &Bus, name: &str) -> Result<Option<Self>, BusError> {
+        let service = match bus
+            .node
+            .service_builder(&Bus::service_name(name)?)
+            .publish_subscribe::<M>()
+            .open()
+        {
+            Ok(service) => service,
+            Err(iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError::DoesNotExist) => {
+                return Ok(None);
+            }
+            Err(e) => {
+                return Err(BusError::Service {
+                    service: name.to_owned(),
+                    detail: e.to_string(),
+                });
+            }
+        };
+        let subscriber = with_dead_node_cleanup(&service, || service.subscriber_builder().create())
+            .map_err(|e| port_error(name, e))?;
+        Ok(Some(Self::from_ports(
+            bus,
+            name,
+            SubscriberPorts {
+                subscriber,
+                listener: None,
+            },
+        )))
+    }
+
+    /// Wraps created ports and registers them for connection refresh.
+    fn from_ports(bus: &Bus, name: &str, ports: SubscriberPorts<M>) -> Self {
+        let ports = Rc::new(ports);
         let weak: Weak<SubscriberPorts<M>> = Rc::downgrade(&ports);
         bus.register(weak);
-        Ok(Self {
+        Self {
             ports,
             service: name.to_owned(),
             shared: bus.shared.clone(),
@@ -402,7 +446,7 @@ impl<M: Message> Subscriber<M> {
             accepted: 0,
             rejected: 0,
             last_rejection: None,
-        })
+        }
     }
 
     /// The service name.

@@ -1,0 +1,21 @@
+//! The motm logger: taps every iceoryx2 service of a running stack and writes a chunked MCAP
+//! file that opens in Foxglove (foxglove protobuf schemas for the 3D view and the camera, JSON
+//! channels with a jsonschema for everything else), and reads such files back for
+//! `motm log info` and `motm log check`.
+//!
+//! - [`recorder`]: the pure step, samples → records (derived 3D channels, decimation).
+//! - [`sink`]: records → MCAP channels and chunks.
+//! - [`inspect`]: scanning a (possibly cut-off) log; [`protobuf_check`]: decoding with the
+//!   schema stored in the file.
+//! - [`foxglove`], [`json`]: the message encodings.
+
+pub mod foxglove;
+pub mod inspect;
+pub mod json;
+pub mod protobuf_check;
+pub mod recorder;
+pub mod sink;
+
+pub use inspect::{LogSummary, scan};
+pub use recorder::{LoggerConfig, Record, Recorder, SceneLayout};
+pub use sink::McapSink;

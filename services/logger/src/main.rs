@@ -1,0 +1,376 @@
+//! `logger`: attaches to every iceoryx2 service of a running stack (the prefix from
+//! `$MOTM_IPC_PREFIX`) and writes what it reads to a chunked MCAP file until SIGTERM/SIGINT.
+//!
+//! It never slows a publisher: it only opens existing services (never creates one or asks for
+//! settings), takes one subscriber slot per service, and the services overflow safely (a full
+//! queue drops its oldest sample, counted in `/logger/stats`). Memory stays bounded: samples
+//! are read in place and released at once, and at most one chunk is held before it is written.
+//! Services that appear later (a late start, a restart) are attached within a second;
+//! heartbeat services are found by listing the prefix's services.
+
+use std::collections::BTreeSet;
+use std::fs::File;
+use std::path::PathBuf;
+
+use clap::Parser;
+use iceoryx2::prelude::*;
+use motm_bus::{Bus, BusError, Flow, LoopConfig, ServiceLoop, Subscriber};
+use motm_logger::json::ToJson;
+use motm_logger::recorder::{Recorder, topics};
+use motm_logger::{LoggerConfig, McapSink, Record, SceneLayout};
+use motm_msgs::{self as msgs, Message, services};
+use serde_json::json;
+
+/// Process (and heartbeat) name.
+const PROCESS: &str = "logger";
+
+/// How often missing services are looked for again (and heartbeat services listed), ns.
+const ATTACH_PERIOD_NS: u64 = 1_000_000_000;
+
+/// How often `/logger/stats` is written, ns.
+const STATS_PERIOD_NS: u64 = 1_000_000_000;
+
+/// Command line.
+#[derive(Debug, Parser)]
+#[command(name = PROCESS, about = "Log every iceoryx2 service of a running motm stack to an MCAP file")]
+struct Cli {
+    /// Output MCAP file (overwritten).
+    #[arg(long)]
+    out: PathBuf,
+    /// Folder holding robots/ and scenarios/ (default: $MOTM_CONFIG_DIR, ./config, or the source tree's config/).
+    #[arg(long)]
+    config_dir: Option<PathBuf>,
+    /// Robot model for the transforms (`frankie`, `fetch`, `husky_ur5`).
+    #[arg(long, default_value = "frankie")]
+    robot: String,
+    /// Scenario file or name, for the platforms and containers of the scene (none when absent).
+    #[arg(long)]
+    scenario: Option<String>,
+    /// Logger settings: a TOML file with keys of the logger config (rates, decimation, chunk size).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+}
+
+/// One tapped service: its subscriber (once the service exists), what to do with a sample,
+/// and counters.
+struct Tap<M: Message> {
+    service: String,
+    subscriber: Option<Subscriber<M>>,
+    handle: fn(&mut Recorder, &str, &M, &mut Vec<Record>),
+    /// Last `(publisher id, sequence number)` read, to count lost samples.
+    last: Option<(u128, u64)>,
+    received: u64,
+    lost: u64,
+    attach_error: Option<String>,
+}
+
+/// A tap of any payload type.
+trait Source {
+    /// Attaches the subscriber if the service exists now.
+    fn attach(&mut self, bus: &Bus);
+    /// Reads every queued sample into records.
+    fn drain(&mut self, recorder: &mut Recorder, out: &mut Vec<Record>) -> Result<(), BusError>;
+    /// Service name, samples read, samples lost (queue overflow).
+    fn counts(&self) -> (&str, u64, u64);
+}
+
+impl<M: Message> Tap<M> {
+    /// A tap of `service` handling samples with `handle`.
+    fn boxed(
+        service: &str,
+        handle: fn(&mut Recorder, &str, &M, &mut Vec<Record>),
+    ) -> Box<dyn Source> {
+        Box::new(Self {
+            service: service.to_owned(),
+            subscriber: None,
+            handle,
+            last: None,
+            received: 0,
+            lost: 0,
+            attach_error: None,
+        })
+    }
+}
+
+impl<M: Message> Source for Tap<M> {
+    fn attach(&mut self, bus: &Bus) {
+        if self.subscriber.is_some() {
+            return;
+        }
+        match Subscriber::<M>::attach(bus, &self.service) {
+            Ok(subscriber) => self.subscriber = subscriber,
+            Err(e) => {
+                let text = e.to_string();
+                if self.attach_error.as_deref() != Some(&text) {
+                    eprintln!("{PROCESS}: {text} (retrying)");
+                    self.attach_error = Some(text);
+                }
+            }
+        }
+    }
+
+    fn drain(&mut self, recorder: &mut Recorder, out: &mut Vec<Record>) -> Result<(), BusError> {
+        let Some(subscriber) = &mut self.subscriber else {
+            return Ok(());
+        };
+        while let Some(sample) = subscriber.receive()? {
+            let publisher = sample.publisher_id();
+            let seq = sample.header().seq;
+            if let Some((last_publisher, last_seq)) = self.last
+                && last_publisher == publisher
+            {
+                self.lost += seq.saturating_sub(last_seq + 1);
+            }
+            self.last = Some((publisher, seq));
+            self.received += 1;
+            (self.handle)(recorder, &self.service, &sample, out);
+        }
+        Ok(())
+    }
+
+    fn counts(&self) -> (&str, u64, u64) {
+        (&self.service, self.received, self.lost)
+    }
+}
+
+/// Logs a sample on its JSON channel only.
+fn raw<M: Message + ToJson>(
+    recorder: &mut Recorder,
+    service: &str,
+    sample: &M,
+    out: &mut Vec<Record>,
+) {
+    recorder.raw(service, sample, out);
+}
+
+/// Every fixed service of the stack with what is made of its samples.
+fn fixed_taps() -> Vec<Box<dyn Source>> {
+    use msgs::{
+        ActiveController, ArmVelocityCommand, BaseOdometry, BasePlan, BaseVelocityCommand,
+        DriverStatus, GripperCommand, GripperState, JointState, MissionState, QpStatus, SafeStop,
+        SimTruth, TargetEstimate, TwistCommand,
+    };
+    use services as s;
+    vec![
+        Tap::<JointState>::boxed(s::ARM_JOINT_STATE, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.joint_state(m, out);
+        }),
+        Tap::<BaseOdometry>::boxed(s::BASE_ODOMETRY, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.odometry(m);
+        }),
+        Tap::<BasePlan>::boxed(s::BASE_PLAN, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.plan(m);
+        }),
+        Tap::<TargetEstimate>::boxed(s::PERCEPTION_TARGET, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.target(m, out);
+        }),
+        Tap::<TwistCommand>::boxed(s::CONTROL_REACH_TWIST, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.reach_twist(m);
+        }),
+        Tap::<SimTruth>::boxed(s::SIM_TRUTH, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.truth(m, out);
+        }),
+        Tap::<msgs::CameraImage>::boxed(s::CAMERA_IMAGE, |r, _, m, out| r.camera(m, out)),
+        Tap::<GripperState>::boxed(s::ARM_GRIPPER_STATE, raw),
+        Tap::<ArmVelocityCommand>::boxed(s::ARM_VELOCITY_COMMAND, raw),
+        Tap::<GripperCommand>::boxed(s::ARM_GRIPPER_COMMAND, raw),
+        Tap::<BaseVelocityCommand>::boxed(s::BASE_VELOCITY_TARGET, raw),
+        Tap::<BaseVelocityCommand>::boxed(s::BASE_VELOCITY_COMMAND, raw),
+        Tap::<TwistCommand>::boxed(s::CONTROL_FINAL_TWIST, raw),
+        Tap::<QpStatus>::boxed(s::CONTROL_QP_STATUS, raw),
+        Tap::<ActiveController>::boxed(s::CONTROL_ACTIVE_CONTROLLER, raw),
+        Tap::<MissionState>::boxed(s::MISSION_STATE, raw),
+        Tap::<SafeStop>::boxed(s::SAFETY_SAFE_STOP, raw),
+        Tap::<ArmVelocityCommand>::boxed(s::HW_ARM_COMMAND, raw),
+        Tap::<JointState>::boxed(s::HW_ARM_STATE, raw),
+        Tap::<BaseVelocityCommand>::boxed(s::HW_BASE_COMMAND, raw),
+        Tap::<BaseOdometry>::boxed(s::HW_BASE_STATE, raw),
+        Tap::<GripperCommand>::boxed(s::HW_GRIPPER_COMMAND, raw),
+        Tap::<GripperState>::boxed(s::HW_GRIPPER_STATE, raw),
+        Tap::<DriverStatus>::boxed(s::ARM_DRIVER_STATUS, raw),
+        Tap::<DriverStatus>::boxed(s::BASE_DRIVER_STATUS, raw),
+    ]
+}
+
+/// Names of the heartbeat services that exist on `bus`'s prefix.
+fn heartbeat_services(bus: &Bus) -> Vec<String> {
+    let prefix = format!("{}/", services::HEARTBEAT_PREFIX);
+    let mut found = Vec::new();
+    let Ok(config) = bus.ipc_config().iceoryx2() else {
+        return found;
+    };
+    let _ = ipc::Service::list(&config, |details| {
+        let name = details.static_details.name().to_string();
+        // `<service>/ready` names are the wake-up event services, not heartbeats.
+        if name.starts_with(&prefix) && !name.ends_with("/ready") {
+            found.push(name);
+        }
+        CallbackProgression::Continue
+    });
+    found
+}
+
+/// Loads the settings, the robot and the scene layout.
+fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
+    let config_dir = motm_core::resolve_config_dir(cli.config_dir.as_deref());
+    let config: LoggerConfig = match &cli.settings {
+        Some(path) => {
+            let text =
+                std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?
+        }
+        None => LoggerConfig::default(),
+    };
+    for (key, value) in [
+        ("poll_rate_hz", config.poll_rate_hz),
+        ("raw_rate_hz", config.raw_rate_hz),
+        ("tf_rate_hz", config.tf_rate_hz),
+        ("scene_rate_hz", config.scene_rate_hz),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(format!("logger settings: {key} must be > 0, got {value}"));
+        }
+    }
+    let robot =
+        motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
+    let layout = match &cli.scenario {
+        Some(name) => {
+            let path = motm_sim::scenario_path(&config_dir, name);
+            SceneLayout::from_scenario(
+                &motm_sim::Scenario::from_file(&path).map_err(|e| e.to_string())?,
+            )
+        }
+        None => SceneLayout::default(),
+    };
+    Ok((config.clone(), Recorder::new(robot, layout, config)))
+}
+
+/// Monotonic → Unix time offset, ns.
+fn unix_offset_ns() -> i128 {
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i128);
+    unix - i128::from(motm_bus::monotonic_now_ns())
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let (config, mut recorder) = match setup(&cli) {
+        Ok(setup) => setup,
+        Err(e) => {
+            eprintln!("{PROCESS}: {e}");
+            std::process::exit(2);
+        }
+    };
+    if config.idle_scheduling {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: sched_setscheduler(2) reads `param` only. A failure leaves the normal
+        // policy, which is only less polite.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
+            eprintln!("{PROCESS}: cannot switch to SCHED_IDLE; running at normal priority");
+        }
+    }
+    if let Err(e) = run(&cli, &config, &mut recorder) {
+        eprintln!("{PROCESS}: {e}");
+        std::process::exit(1);
+    }
+}
+
+/// Taps the bus until SIGTERM/SIGINT, then finishes the file.
+fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), String> {
+    let file = File::create(&cli.out).map_err(|e| format!("{}: {e}", cli.out.display()))?;
+    let mut sink = McapSink::new(
+        file,
+        config.chunk_bytes,
+        config.flush_interval_s,
+        unix_offset_ns(),
+    )
+    .map_err(|e| format!("{}: {e}", cli.out.display()))?;
+    let bus = Bus::open(PROCESS).map_err(|e| e.to_string())?;
+    let mut taps = fixed_taps();
+    let mut heartbeats = BTreeSet::new();
+    let mut records = Vec::new();
+    let mut failure = None;
+    let mut last_attach: Option<u64> = None;
+    let mut last_stats: Option<u64> = None;
+    let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(config.poll_rate_hz))
+        .map_err(|e| e.to_string())?;
+    let exit = service
+        .run_periodic(|cycle| {
+            let now = cycle.now_ns;
+            if last_attach.is_none_or(|t| now.saturating_sub(t) >= ATTACH_PERIOD_NS) {
+                last_attach = Some(now);
+                for name in heartbeat_services(&bus) {
+                    if heartbeats.insert(name.clone()) {
+                        taps.push(Tap::<msgs::Heartbeat>::boxed(&name, raw));
+                    }
+                }
+                for tap in &mut taps {
+                    tap.attach(&bus);
+                }
+            }
+            for tap in &mut taps {
+                if let Err(e) = tap.drain(recorder, &mut records) {
+                    eprintln!("{PROCESS}: {e}");
+                }
+            }
+            if last_stats.is_none_or(|t| now.saturating_sub(t) >= STATS_PERIOD_NS) {
+                last_stats = Some(now);
+                records.push(stats(&taps, &sink, now));
+            }
+            let written = records
+                .drain(..)
+                .try_for_each(|record| sink.write(&record))
+                .and_then(|()| sink.flush_if_due(now));
+            if let Err(e) = written {
+                failure = Some(format!("{}: {e}", cli.out.display()));
+                return Flow::Stop;
+            }
+            Flow::Continue
+        })
+        .map_err(|e| e.to_string())?;
+    if let Some(failure) = failure {
+        return Err(failure);
+    }
+    let written = sink.written;
+    sink.finish()
+        .map_err(|e| format!("{}: {e}", cli.out.display()))?;
+    eprintln!(
+        "{PROCESS}: {exit:?}; wrote {written} messages to {}",
+        cli.out.display()
+    );
+    Ok(())
+}
+
+/// The `/logger/stats` record at `now_ns`.
+fn stats(taps: &[Box<dyn Source>], sink: &McapSink<File>, now_ns: u64) -> Record {
+    let mut lost_by_service = serde_json::Map::new();
+    let (mut received, mut lost, mut attached) = (0, 0, 0);
+    for tap in taps {
+        let (name, r, l) = tap.counts();
+        received += r;
+        lost += l;
+        attached += u64::from(r > 0);
+        if l > 0 {
+            lost_by_service.insert(name.to_owned(), l.into());
+        }
+    }
+    Record {
+        topic: topics::LOGGER_STATS.into(),
+        stamp_ns: now_ns,
+        payload: motm_logger::recorder::Payload::Json(json!({
+            "services_with_samples": attached,
+            "samples_received": received,
+            "samples_lost": lost,
+            "records_written": sink.written,
+            "raised_stamps": sink.raised_stamps,
+            "lost_by_service": lost_by_service,
+        })),
+    }
+}

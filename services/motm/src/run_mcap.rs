@@ -1,0 +1,90 @@
+//! `motm run --mcap FILE`: the logger process beside the stack. It is started before the
+//! supervisor (it attaches to each service as it appears) and stopped before it (SIGTERM: the
+//! logger writes its last chunk and the summary), so the file covers the whole run.
+
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Child, Command};
+use std::time::Duration;
+
+use motm_supervisor::binaries;
+
+use crate::CliError;
+
+/// Name of the logger binary.
+const LOGGER: &str = "logger";
+
+/// Makes `command`'s process get SIGTERM when this process exits, so no child outlives a
+/// `motm run` that was killed.
+pub fn exit_with_parent(command: &mut Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: only async-signal-safe calls between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("motm run exited"));
+            }
+            Ok(())
+        });
+    }
+}
+
+/// The running logger.
+pub struct LoggerProcess {
+    child: Child,
+}
+
+impl LoggerProcess {
+    /// Starts `logger --out <out>` from `bin_dir` on iceoryx2 prefix `prefix` (building it with
+    /// `$CARGO` when it is missing and `motm` runs through Cargo).
+    pub fn start(
+        bin_dir: &Path,
+        prefix: &str,
+        out: &Path,
+        config_dir: &Path,
+        robot: &str,
+        scenario: &Path,
+    ) -> Result<Self, CliError> {
+        // A path that cannot be written is bad input, found before the stack starts.
+        std::fs::File::create(out)
+            .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
+        if !binaries::missing(bin_dir, [LOGGER]).is_empty()
+            && let Some(cargo) = std::env::var_os("CARGO")
+            && let Err(e) =
+                binaries::cargo_build(Path::new(&cargo), bin_dir, &["motm-logger".to_string()])
+        {
+            eprintln!("motm run: {e}");
+        }
+        let mut command = Command::new(binaries::binary_path(bin_dir, LOGGER));
+        command
+            .arg("--out")
+            .arg(out)
+            .arg("--config-dir")
+            .arg(config_dir)
+            .arg("--robot")
+            .arg(robot)
+            .arg("--scenario")
+            .arg(scenario)
+            .env(motm_bus::PREFIX_ENV, prefix);
+        exit_with_parent(&mut command);
+        let child = command.spawn().map_err(|e| {
+            CliError::Failed(format!(
+                "cannot start the logger (`cargo build -p motm-logger`): {e}"
+            ))
+        })?;
+        Ok(Self { child })
+    }
+
+    /// Stops the logger (SIGTERM, SIGKILL after `grace`); an error when it did not finish the
+    /// file cleanly.
+    pub fn stop(mut self, grace: Duration) -> Result<(), CliError> {
+        match crate::run::stop_supervisor(&mut self.child, grace) {
+            Some(s) if s.success() => Ok(()),
+            Some(s) => Err(CliError::Failed(format!("logger exited with {s}"))),
+            None => Err(CliError::Failed("logger did not stop".into())),
+        }
+    }
+}

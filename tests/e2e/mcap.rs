@@ -1,0 +1,266 @@
+//! `motm run --mcap` with the real processes: the logger's file holds every expected channel
+//! with messages, each protobuf message decodes with the schema stored in the file, log times
+//! never decrease within a channel, and `motm log check` accepts it. A logger killed mid-run
+//! leaves a file `motm log check` still accepts, up to its last whole chunk.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use motm_e2e::{motm, processes_mentioning, workspace_root};
+use motm_logger::foxglove as fg;
+use motm_logger::protobuf_check::SchemaDecoder;
+use motm_logger::recorder::topics;
+use motm_msgs::services;
+use prost::Message as _;
+
+/// Held by each test that runs a stack, so the two stacks of this file do not share the
+/// machine's cores with each other (the logger runs under `SCHED_IDLE`).
+static ONE_STACK_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Builds the logger (the stack packages are built by [`motm`]), so no stale binary runs.
+fn build_logger() {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(workspace_root())
+        .args(["build", "--quiet", "-p", "motm-logger"])
+        .status()
+        .expect("cargo build");
+    assert!(status.success(), "cargo build -p motm-logger failed");
+}
+
+/// A fresh output path in the temp folder.
+fn out_path(name: &str) -> PathBuf {
+    let path = std::env::temp_dir().join(format!("motm-e2e-{}-{name}.mcap", std::process::id()));
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+/// The channels a run must fill: the 3D view, the image, the plots and the raw services.
+fn expected_topics() -> Vec<String> {
+    let mut topics: Vec<String> = [
+        topics::TF,
+        topics::JOINT_STATES,
+        topics::EE_POSE,
+        topics::TARGET_POSE,
+        topics::SCENE,
+        topics::CAMERA_IMAGE,
+        topics::KINEMATICS,
+        topics::LOGGER_STATS,
+    ]
+    .map(String::from)
+    .to_vec();
+    for service in [
+        services::ARM_JOINT_STATE,
+        services::BASE_ODOMETRY,
+        services::BASE_PLAN,
+        services::CONTROL_QP_STATUS,
+        services::CONTROL_REACH_TWIST,
+        services::MISSION_STATE,
+        services::SAFETY_SAFE_STOP,
+        services::SIM_TRUTH,
+        services::ARM_DRIVER_STATUS,
+    ] {
+        topics.push(format!("/{service}"));
+    }
+    for process in ["qp-resolver", "reacher", "watchdog", "panda-driver"] {
+        topics.push(format!("/{}", services::heartbeat(process)));
+    }
+    topics
+}
+
+#[test]
+fn motm_run_mcap_logs_every_channel_decodable_with_its_stored_schema() {
+    let _stack = ONE_STACK_AT_A_TIME
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    build_logger();
+    let path = out_path("run");
+    let prefix = format!("motme2e{}_mcap_", std::process::id());
+    let out = motm(
+        &["run", "--json", "--mcap", path.to_str().unwrap()],
+        &prefix,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "motm run failed: {stderr}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("motm run --json report");
+    let logger = report["processes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "logger")
+        .unwrap_or_else(|| panic!("no logger in {report}"));
+    assert!(logger["cycles"].as_u64().unwrap() > 0, "{report}");
+
+    let bytes = std::fs::read(&path).expect("the log");
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    let mut last_log_time: BTreeMap<String, u64> = BTreeMap::new();
+    let mut decoders: BTreeMap<String, SchemaDecoder> = BTreeMap::new();
+    let mut tf_frames = Vec::new();
+    let mut joints = 0;
+    for message in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let message = message.expect("a whole message");
+        let topic = message.channel.topic.clone();
+        let last = last_log_time.entry(topic.clone()).or_insert(0);
+        assert!(message.log_time >= *last, "{topic}: log time went back");
+        *last = message.log_time;
+        *counts.entry(topic.clone()).or_insert(0) += 1;
+        let schema = message
+            .channel
+            .schema
+            .as_ref()
+            .expect("every channel has a schema");
+        match message.channel.message_encoding.as_str() {
+            "protobuf" => {
+                assert_eq!(schema.encoding, "protobuf");
+                let decoder = decoders.entry(topic.clone()).or_insert_with(|| {
+                    SchemaDecoder::new(&schema.name, &schema.data).expect("a descriptor set")
+                });
+                decoder
+                    .decode(&message.data)
+                    .unwrap_or_else(|e| panic!("{topic}: {e}"));
+            }
+            "json" => {
+                assert_eq!(schema.encoding, "jsonschema");
+                let _: serde_json::Value =
+                    serde_json::from_slice(&message.data).expect("JSON message");
+            }
+            other => panic!("{topic}: unexpected encoding {other}"),
+        }
+        if topic == topics::TF && tf_frames.is_empty() {
+            let tf = fg::FrameTransforms::decode(message.data.as_ref()).unwrap();
+            tf_frames = tf
+                .transforms
+                .iter()
+                .map(|t| t.child_frame_id.clone())
+                .collect();
+        }
+        if topic == topics::JOINT_STATES && joints == 0 {
+            joints = fg::JointStates::decode(message.data.as_ref())
+                .unwrap()
+                .joints
+                .len();
+        }
+    }
+    for topic in expected_topics() {
+        assert!(
+            counts.get(&topic).copied().unwrap_or(0) > 0,
+            "{topic} missing or empty: {counts:?}"
+        );
+    }
+    // Frankie: world → base → 7 arm joints → tool; joint states for the 7 arm joints.
+    assert_eq!(
+        tf_frames.first().map(String::as_str),
+        Some("base"),
+        "{tf_frames:?}"
+    );
+    assert_eq!(
+        tf_frames.last().map(String::as_str),
+        Some("tool"),
+        "{tf_frames:?}"
+    );
+    assert_eq!(tf_frames.len(), 9, "{tf_frames:?}");
+    assert_eq!(joints, 7);
+
+    let check = motm(&["log", "check", path.to_str().unwrap()], &prefix);
+    let text = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success(),
+        "{text} {}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert!(text.contains("complete"), "{text}");
+    let _ = std::fs::remove_file(&path);
+}
+
+#[test]
+fn motm_log_check_exits_2_for_a_missing_file_and_1_for_garbage() {
+    let path = out_path("garbage");
+    let missing = motm(&["log", "check", path.to_str().unwrap()], "motme2e_unused_");
+    assert_eq!(missing.status.code(), Some(2));
+    std::fs::write(&path, b"\x89MCAP0\r\n but then nothing sensible").unwrap();
+    let garbage = motm(&["log", "check", path.to_str().unwrap()], "motme2e_unused_");
+    assert_eq!(garbage.status.code(), Some(1));
+    let _ = std::fs::remove_file(&path);
+}
+
+/// Waits until `path` holds at least `bytes` bytes, or `timeout` passes.
+fn wait_for_size(path: &Path, bytes: u64, timeout: Duration) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        if std::fs::metadata(path).is_ok_and(|m| m.len() >= bytes) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    false
+}
+
+#[test]
+fn a_logger_killed_mid_run_leaves_a_file_that_log_check_accepts() {
+    let _stack = ONE_STACK_AT_A_TIME
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    build_logger();
+    // Build everything first (a no-op when already built) so the run starts at once.
+    let _ = motm(&["log", "--help"], "motme2e_unused_");
+    let path = out_path("killed");
+    let prefix = format!("motme2e{}_mcapkill_", std::process::id());
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut run = Command::new(cargo)
+        .current_dir(workspace_root())
+        .args([
+            "run", "--quiet", "-p", "motm", "--", "run", "--json", "--mcap",
+        ])
+        .arg(&path)
+        .env(motm_bus::PREFIX_ENV, &prefix)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("motm run");
+    // Whole chunks (512 kB, or whatever a second brought) are written within seconds: the
+    // camera alone is ~1.4 MB/s.
+    let grew = wait_for_size(&path, 3 << 19, Duration::from_secs(120));
+    let needle = format!("--out {}", path.display());
+    let loggers: Vec<u32> = processes_mentioning(path.to_str().unwrap())
+        .into_iter()
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline")).is_ok_and(|c| {
+                String::from_utf8_lossy(&c)
+                    .replace('\0', " ")
+                    .contains(&needle)
+            })
+        })
+        .collect();
+    for pid in &loggers {
+        // SAFETY: kill(2) has no memory-safety preconditions; the pid is our logger child.
+        unsafe {
+            libc::kill(*pid as libc::pid_t, libc::SIGKILL);
+        }
+    }
+    // The run goes on without its logger and reports it (exit 1); wait for it to end.
+    let _ = run.wait();
+    assert!(grew, "the log never reached 1.5 MB");
+    assert_eq!(loggers.len(), 1, "expected one logger process");
+    assert!(
+        processes_mentioning(&prefix).is_empty(),
+        "the run left processes"
+    );
+
+    let check = motm(&["log", "check", path.to_str().unwrap()], &prefix);
+    let text = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success(),
+        "{text} {}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert!(text.contains("incomplete"), "{text}");
+    let info = motm(&["log", "info", "--json", path.to_str().unwrap()], &prefix);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("info JSON");
+    assert_eq!(info["complete"], false);
+    assert!(info["messages"].as_u64().unwrap() > 1000, "{info}");
+    assert!(info["chunks"].as_u64().unwrap() >= 2, "{info}");
+    let _ = std::fs::remove_file(&path);
+}
