@@ -57,6 +57,7 @@ pub mod stack;
 pub mod types;
 pub mod velocity_driver;
 pub mod watchdog;
+pub mod base_slip;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use config_dir::resolve_config_dir;

@@ -19,11 +19,16 @@
 //! - **Twist rate limit.** The twist sent to the QP changes by at most
 //!   [`TwistRateLimit`] per second, so hand-overs (reacher → final phase → next task) do not jerk
 //!   the tool.
+//! - **Base velocity error feed-forward.** The twist sent to the QP also carries the correction
+//!   of [`crate::base_slip`]: minus the tool motion caused by the difference between the base's
+//!   measured velocity and the one the QP commanded on the previous cycle, so the arm cancels
+//!   the base's gain error and lag instead of the final-phase servo chasing them.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
 
 use nalgebra::{Vector3, Vector6};
 use serde::Deserialize;
 
+use crate::base_slip::{BaseSlipConfig, slip_correction};
 use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
 };
@@ -95,6 +100,8 @@ pub struct OnTheMoveConfig {
     /// be followed, so the slack must stay expensive even when the target is metres away;
     /// the cap also keeps the weights from jumping when a new task starts.
     pub max_position_error: f64,
+    /// Feed-forward of the base's velocity error into the twist sent to the QP.
+    pub base_slip: BaseSlipConfig,
 }
 
 impl Default for OnTheMoveConfig {
@@ -107,6 +114,7 @@ impl Default for OnTheMoveConfig {
             resolver: ResolverConfig::default(),
             twist_rate: TwistRateLimit::default(),
             max_position_error: 0.2,
+            base_slip: BaseSlipConfig::default(),
         }
     }
 }
@@ -177,6 +185,8 @@ pub struct OnTheMove {
     resolver: RedundancyResolver,
     last_twist: Twist,
     last_acceleration: Vector6<f64>,
+    /// The base velocity the QP commanded on the previous cycle.
+    last_base_command: BaseVelocity,
     rejected_inputs: u64,
 }
 
@@ -201,6 +211,7 @@ impl OnTheMove {
             config,
             last_twist: Twist::zeros(),
             last_acceleration: Vector6::zeros(),
+            last_base_command: BaseVelocity::default(),
             rejected_inputs: 0,
         }
     }
@@ -229,6 +240,7 @@ impl OnTheMove {
     fn hold(&mut self, task_index: usize, phase: Phase) -> OnTheMoveOutput {
         self.last_twist = Twist::zeros();
         self.last_acceleration = Vector6::zeros();
+        self.last_base_command = BaseVelocity::default();
         OnTheMoveOutput {
             base: BaseVelocity::default(),
             arm_qd: vec![0.0; self.robot.arm_dof()],
@@ -351,15 +363,24 @@ impl OnTheMove {
             .twist_rate
             .apply(&self.last_twist, &twist, input.dt);
         self.last_twist = twist;
+        let correction = slip_correction(
+            &self.robot,
+            &input.base,
+            input.arm_q,
+            input.base_velocity,
+            self.last_base_command,
+            &self.config.base_slip,
+        );
 
         let resolved = self.resolver.resolve_motm(
             &self.robot,
             &input.base,
             input.arm_q,
-            twist,
+            twist + correction,
             tool_to_target.min(self.config.max_position_error),
             Some(base_out.command),
         );
+        self.last_base_command = resolved.base;
         let status = self.mission.step(tool_to_target, progress);
         if status.changed && status.task_index != task_index {
             // A new task starts: its final-phase controller begins from its first stage.
