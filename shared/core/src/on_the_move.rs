@@ -148,7 +148,7 @@ pub struct OnTheMoveOutput {
     pub arm_qd: Vec<f64>,
     /// Gripper command.
     pub gripper: GripperCommand,
-    /// World twist the QP was asked for.
+    /// World twist the QP was asked for, before the base velocity error feed-forward.
     pub twist: Twist,
     /// The base controller's velocity target.
     pub base_target: BaseVelocity,
