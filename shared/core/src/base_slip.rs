@@ -123,7 +123,10 @@ mod tests {
         let arm = tool - Vector3::new(base.x, base.y, 0.0);
         let expected = Vector3::new(base.yaw.cos(), base.yaw.sin(), 0.0) * velocity.v
             + Vector3::z().cross(&arm) * velocity.omega;
-        assert!((twist.fixed_rows::<3>(0) - expected).norm() < 1e-9, "{twist}");
+        assert!(
+            (twist.fixed_rows::<3>(0) - expected).norm() < 1e-9,
+            "{twist}"
+        );
         assert!((twist[5] - velocity.omega).abs() < 1e-12);
     }
 
@@ -136,7 +139,10 @@ mod tests {
         // The base drives 10 % faster than commanded: the tool is carried 4 cm/s further
         // forward than the QP planned, so the arm must be asked for 4 cm/s backward.
         let commanded = BaseVelocity { v: 0.4, omega: 0.0 };
-        let measured = BaseVelocity { v: 0.44, omega: 0.0 };
+        let measured = BaseVelocity {
+            v: 0.44,
+            omega: 0.0,
+        };
         let correction = slip_correction(&robot, &base, &q, measured, commanded, &config);
         assert!((correction[0] + 0.04).abs() < 1e-9, "{correction}");
         assert!(correction.rows(1, 5).norm() < 1e-9, "{correction}");
@@ -171,7 +177,10 @@ mod tests {
             enabled: false,
             ..config
         };
-        let measured = BaseVelocity { v: 0.44, omega: 0.0 };
+        let measured = BaseVelocity {
+            v: 0.44,
+            omega: 0.0,
+        };
         assert_eq!(
             slip_correction(&robot, &base, &q, measured, commanded, &off),
             Twist::zeros()

@@ -30,6 +30,7 @@
 //! - [`error`]: errors that name the file and element at fault.
 
 pub mod base_controller;
+pub mod base_slip;
 pub mod camera;
 pub mod chain;
 pub mod command_limiter;
@@ -57,7 +58,6 @@ pub mod stack;
 pub mod types;
 pub mod velocity_driver;
 pub mod watchdog;
-pub mod base_slip;
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use config_dir::resolve_config_dir;
