@@ -31,6 +31,7 @@
 
 pub mod base_controller;
 pub mod base_slip;
+pub mod base_command_rate;
 pub mod camera;
 pub mod chain;
 pub mod command_limiter;

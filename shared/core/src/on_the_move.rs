@@ -23,6 +23,9 @@
 //!   of [`crate::base_slip`]: minus the tool motion caused by the difference between the base's
 //!   measured velocity and the one the QP commanded on the previous cycle, so the arm cancels
 //!   the base's gain error and lag instead of the final-phase servo chasing them.
+//! - **Base target rate limit.** The base controller's velocity target reaches the QP through
+//!   [`crate::base_command_rate`], which limits its change to the base's acceleration limits,
+//!   so the QP never plans the arm around a base turn the base cannot make.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
 
 use nalgebra::{Vector3, Vector6};
@@ -31,6 +34,7 @@ use serde::Deserialize;
 use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
 };
+use crate::base_command_rate::{BaseCommandRate, BaseCommandRateConfig};
 use crate::base_slip::{BaseSlipConfig, slip_correction};
 use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
@@ -102,6 +106,8 @@ pub struct OnTheMoveConfig {
     pub max_position_error: f64,
     /// Feed-forward of the base's velocity error into the twist sent to the QP.
     pub base_slip: BaseSlipConfig,
+    /// Acceleration limit on the base velocity target sent to the QP.
+    pub base_rate: BaseCommandRateConfig,
 }
 
 impl Default for OnTheMoveConfig {
@@ -115,6 +121,7 @@ impl Default for OnTheMoveConfig {
             twist_rate: TwistRateLimit::default(),
             max_position_error: 0.2,
             base_slip: BaseSlipConfig::default(),
+            base_rate: BaseCommandRateConfig::default(),
         }
     }
 }
@@ -187,6 +194,8 @@ pub struct OnTheMove {
     last_acceleration: Vector6<f64>,
     /// The base velocity the QP commanded on the previous cycle.
     last_base_command: BaseVelocity,
+    /// Rate limit on the base target handed to the QP.
+    base_rate: BaseCommandRate,
     rejected_inputs: u64,
 }
 
@@ -201,6 +210,7 @@ impl OnTheMove {
         let first_kind = tasks
             .first()
             .map_or(FinalPhaseKind::Grasp, |t| t.kind.into());
+        let base_rate = BaseCommandRate::new(&robot, config.base_rate);
         Self {
             mission: Mission::new(config.mission.clone(), tasks, start),
             base: BaseController::new(config.base.clone(), BaseModel::from_robot(&robot)),
@@ -212,6 +222,7 @@ impl OnTheMove {
             last_twist: Twist::zeros(),
             last_acceleration: Vector6::zeros(),
             last_base_command: BaseVelocity::default(),
+            base_rate,
             rejected_inputs: 0,
         }
     }
@@ -241,6 +252,7 @@ impl OnTheMove {
         self.last_twist = Twist::zeros();
         self.last_acceleration = Vector6::zeros();
         self.last_base_command = BaseVelocity::default();
+        self.base_rate.reset();
         OnTheMoveOutput {
             base: BaseVelocity::default(),
             arm_qd: vec![0.0; self.robot.arm_dof()],
@@ -378,7 +390,7 @@ impl OnTheMove {
             input.arm_q,
             twist + correction,
             tool_to_target.min(self.config.max_position_error),
-            Some(base_out.command),
+            Some(self.base_rate.apply(base_out.command, input.dt)),
         );
         self.last_base_command = resolved.base;
         let status = self.mission.step(tool_to_target, progress);

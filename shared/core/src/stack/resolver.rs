@@ -15,12 +15,15 @@
 //! - **Base velocity error feed-forward** as in [`crate::on_the_move`]: the twist asked of the
 //!   QP carries [`crate::base_slip::slip_correction`] for the measured base velocity against the
 //!   base command resolved on the previous cycle.
+//! - **Base target rate limit** as in [`crate::on_the_move`]
+//!   ([`crate::base_command_rate`]).
 //! - **Missing or stale input** (no mission, joint state or odometry older
 //!   than `max_state_age`, no fresh twist at all): an all-zero command, which the drivers ramp
 //!   to within their limits. A missing or stale base target is replaced by a zero target.
 
 use serde::Deserialize;
 
+use crate::base_command_rate::BaseCommandRate;
 use crate::base_slip::slip_correction;
 use crate::kinematics::BasePose;
 use crate::mission::Phase;
@@ -134,6 +137,8 @@ pub struct ResolverCycle {
     last_twist: Twist,
     /// The base velocity resolved on the previous cycle.
     last_base_command: BaseVelocity,
+    /// Rate limit on the base target handed to the QP.
+    base_rate: BaseCommandRate,
     fallbacks: u64,
     stops: u64,
 }
@@ -147,10 +152,12 @@ impl ResolverCycle {
         limits: ResolverCycleConfig,
         dt: f64,
     ) -> Self {
+        let base_rate = BaseCommandRate::new(&robot, config.base_rate);
         Self {
             dt,
             last_twist: Twist::zeros(),
             last_base_command: BaseVelocity::default(),
+            base_rate,
             resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
             robot,
             config,
@@ -216,6 +223,7 @@ impl ResolverCycle {
         self.stops += 1;
         self.last_twist = Twist::zeros();
         self.last_base_command = BaseVelocity::default();
+        self.base_rate.reset();
         ResolverCycleOutput {
             resolved: ResolverOutput {
                 base: BaseVelocity::default(),
@@ -274,7 +282,7 @@ impl ResolverCycle {
             state.arm_q,
             twist + correction,
             tool_to_target.min(self.config.max_position_error),
-            Some(base_target),
+            Some(self.base_rate.apply(base_target, self.dt)),
         );
         self.last_base_command = resolved.base;
         ResolverCycleOutput {
