@@ -130,13 +130,7 @@ mod tests {
         }
         assert_eq!(last, wanted);
         // The hand-over swing to +0.5 rad/s is also spread out, never a step.
-        let swung = rate.apply(
-            BaseVelocity {
-                v: 0.4,
-                omega: 0.5,
-            },
-            dt,
-        );
+        let swung = rate.apply(BaseVelocity { v: 0.4, omega: 0.5 }, dt);
         assert!((swung.omega - (-1.5 + omega_acc * dt)).abs() < 1e-12);
     }
 

@@ -29,9 +29,9 @@
 //! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
 //! - [`error`]: errors that name the file and element at fault.
 
+pub mod base_command_rate;
 pub mod base_controller;
 pub mod base_slip;
-pub mod base_command_rate;
 pub mod camera;
 pub mod chain;
 pub mod command_limiter;

@@ -31,10 +31,10 @@
 use nalgebra::{Vector3, Vector6};
 use serde::Deserialize;
 
+use crate::base_command_rate::{BaseCommandRate, BaseCommandRateConfig};
 use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
 };
-use crate::base_command_rate::{BaseCommandRate, BaseCommandRateConfig};
 use crate::base_slip::{BaseSlipConfig, slip_correction};
 use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,

@@ -1,7 +1,10 @@
 //! Closed loop: a kinematic Frankie whose base drives 12 % faster than commanded (a drive gain
-//! error, measured by odometry) approaches a static cube at 0.4 m/s. With the base velocity
-//! error fed forward ([`motm_core::base_slip`]) the final-phase servo centres the tool over the
-//! cube and closes; without it the servo lags by its steady-state offset and never closes.
+//! error, measured by odometry) picks a static cube at 0.4 m/s and heads for the container.
+//! - With the base velocity error fed forward ([`motm_core::base_slip`]) the final-phase servo
+//!   centres the tool over the cube before closing; without it the servo lags the cube by its
+//!   steady-state offset.
+//! - The base command never changes faster than the base's acceleration limits
+//!   ([`motm_core::base_command_rate`]), through the grasp and the hand-over to the next task.
 
 use std::path::Path;
 
@@ -25,6 +28,11 @@ struct Approach {
     /// Smallest horizontal tool-to-cube offset in the final phase's approach stage after its
     /// first half second (once the servo has settled), m.
     min_settled_offset: f64,
+    /// Largest change per second of the commanded base ω (rad/s²) and v (m/s²).
+    max_omega_rate: f64,
+    max_v_rate: f64,
+    /// Whether the mission moved on to the place task.
+    handed_over: bool,
 }
 
 fn approach(slip_feed_forward: bool) -> Approach {
@@ -54,11 +62,17 @@ fn approach(slip_feed_forward: bool) -> Approach {
     let mut base = BasePose::default();
     let mut base_velocity = BaseVelocity::default();
     let mut approach_started: Option<f64> = None;
+    let mut base_velocity_command = BaseVelocity::default();
     let mut result = Approach {
         offset_at_close: None,
         min_settled_offset: f64::INFINITY,
+        max_omega_rate: 0.0,
+        max_v_rate: 0.0,
+        handed_over: false,
     };
-    for k in 0..(12.0 / DT) as usize {
+    // The gripper reports open throughout: it closes for the time-out, lifts, and the mission
+    // moves on to the place task.
+    for k in 0..(9.0 / DT) as usize {
         let t = k as f64 * DT;
         let out = controller.step(&OnTheMoveInput {
             t,
@@ -78,12 +92,21 @@ fn approach(slip_feed_forward: bool) -> Approach {
                     result.min_settled_offset = result.min_settled_offset.min(offset);
                 }
             }
-            Some(FinalPhaseStage::Closing) => {
+            Some(FinalPhaseStage::Closing) if result.offset_at_close.is_none() => {
                 result.offset_at_close = Some(offset);
-                break;
             }
             _ => {}
         }
+        result.handed_over |= out.task_index > 0;
+        if k > 0 {
+            // The first cycle starts from rest on both sides; compare consecutive commands.
+            let last = base_velocity_command;
+            result.max_omega_rate = result
+                .max_omega_rate
+                .max((out.base.omega - last.omega).abs() / DT);
+            result.max_v_rate = result.max_v_rate.max((out.base.v - last.v).abs() / DT);
+        }
+        base_velocity_command = out.base;
         // The base moves BASE_GAIN times faster than commanded; odometry measures it.
         base_velocity = BaseVelocity {
             v: out.base.v * BASE_GAIN,
@@ -116,5 +139,28 @@ fn feed_forward_of_the_base_velocity_error_lets_the_grasp_close_on_a_fast_base()
         without.min_settled_offset > 0.005,
         "without the feed-forward the servo lags the cube by its steady offset, got {} m",
         without.min_settled_offset
+    );
+}
+
+#[test]
+fn the_base_command_respects_the_base_acceleration_limits_through_the_hand_over() {
+    let robot = Robot::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config"),
+        "frankie",
+    )
+    .unwrap();
+    let limits = robot.limits();
+    let run = approach(true);
+    assert!(run.handed_over, "the mission reaches the place task");
+    // The QP's base rows are soft, so allow it 5 % beyond the target's limit.
+    assert!(
+        run.max_omega_rate <= limits[0].acceleration * 1.05,
+        "ω command changed at {} rad/s²",
+        run.max_omega_rate
+    );
+    assert!(
+        run.max_v_rate <= limits[1].acceleration * 1.05,
+        "v command changed at {} m/s²",
+        run.max_v_rate
     );
 }
