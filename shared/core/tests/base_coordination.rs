@@ -3,8 +3,9 @@
 //! - With the base velocity error fed forward ([`motm_core::base_slip`]) the final-phase servo
 //!   centres the tool over the cube before closing; without it the servo lags the cube by its
 //!   steady-state offset.
-//! - The base command never changes faster than the base's acceleration limits
-//!   ([`motm_core::base_command_rate`]), through the grasp and the hand-over to the next task.
+//! - With the base target rate limit on ([`motm_core::base_command_rate`], off by default), the
+//!   base command never changes faster than the base's acceleration limits, through the grasp
+//!   and the hand-over to the next task.
 
 use std::path::Path;
 
@@ -35,7 +36,7 @@ struct Approach {
     handed_over: bool,
 }
 
-fn approach(slip_feed_forward: bool) -> Approach {
+fn approach(slip_feed_forward: bool, base_rate_limit: bool) -> Approach {
     let robot = Robot::load(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config"),
         "frankie",
@@ -44,6 +45,7 @@ fn approach(slip_feed_forward: bool) -> Approach {
     let mut config = OnTheMoveConfig::default();
     config.base.forward_speed = V_F;
     config.base_slip.enabled = slip_feed_forward;
+    config.base_rate.enabled = base_rate_limit;
     let cube = Vector3::new(2.0, 0.0, 0.45);
     let tasks = vec![
         MissionTask {
@@ -124,13 +126,13 @@ fn approach(slip_feed_forward: bool) -> Approach {
 
 #[test]
 fn feed_forward_of_the_base_velocity_error_lets_the_grasp_close_on_a_fast_base() {
-    let with = approach(true);
+    let with = approach(true, false);
     let offset = with
         .offset_at_close
         .expect("the gripper closes on the cube with the feed-forward");
     assert!(offset < 0.005, "closed {offset} m off the cube");
 
-    let without = approach(false);
+    let without = approach(false, false);
     assert!(
         without.offset_at_close.is_none_or(|o| o > offset),
         "without the feed-forward the tool is not better centred"
@@ -150,7 +152,7 @@ fn the_base_command_respects_the_base_acceleration_limits_through_the_hand_over(
     )
     .unwrap();
     let limits = robot.limits();
-    let run = approach(true);
+    let run = approach(true, true);
     assert!(run.handed_over, "the mission reaches the place task");
     // The QP's base rows are soft, so allow it 5 % beyond the target's limit.
     assert!(
