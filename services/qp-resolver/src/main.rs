@@ -96,6 +96,7 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
             state: snapshot.measured.map(|m| MeasuredState {
                 base: m.base,
                 arm_q: m.arm_q,
+                base_velocity: m.base_velocity,
                 age_ns: now.saturating_sub(m.stamp_ns),
             }),
             target: snapshot

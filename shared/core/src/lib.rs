@@ -31,7 +31,9 @@
 //! - [`fault_schedule`]: the `motm run --fault` schedule (kill, stop, NaN sample).
 //! - [`facing`]: which arm joint the MotM facing term turns toward the gripper.
 
+pub mod base_command_rate;
 pub mod base_controller;
+pub mod base_slip;
 pub mod camera;
 pub mod chain;
 pub mod command_limiter;

@@ -19,14 +19,23 @@
 //! - **Twist rate limit.** The twist sent to the QP changes by at most
 //!   [`TwistRateLimit`] per second, so hand-overs (reacher → final phase → next task) do not jerk
 //!   the tool.
+//! - **Base velocity error feed-forward.** The twist sent to the QP also carries the correction
+//!   of [`crate::base_slip`]: minus the tool motion caused by the difference between the base's
+//!   measured velocity and the one the QP commanded on the previous cycle, so the arm cancels
+//!   the base's gain error and lag instead of the final-phase servo chasing them.
+//! - **Base target rate limit** (off by default, see [`crate::base_command_rate`]). When on, the
+//!   base controller's velocity target reaches the QP with its change limited to the base's
+//!   acceleration limits, so the QP never plans the arm around a base turn the base cannot make.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
 
 use nalgebra::{Vector3, Vector6};
 use serde::Deserialize;
 
+use crate::base_command_rate::{BaseCommandRate, BaseCommandRateConfig};
 use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
 };
+use crate::base_slip::{BaseSlipConfig, slip_correction};
 use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
 };
@@ -95,6 +104,10 @@ pub struct OnTheMoveConfig {
     /// be followed, so the slack must stay expensive even when the target is metres away;
     /// the cap also keeps the weights from jumping when a new task starts.
     pub max_position_error: f64,
+    /// Feed-forward of the base's velocity error into the twist sent to the QP.
+    pub base_slip: BaseSlipConfig,
+    /// Acceleration limit on the base velocity target sent to the QP.
+    pub base_rate: BaseCommandRateConfig,
 }
 
 impl Default for OnTheMoveConfig {
@@ -107,6 +120,8 @@ impl Default for OnTheMoveConfig {
             resolver: ResolverConfig::default(),
             twist_rate: TwistRateLimit::default(),
             max_position_error: 0.2,
+            base_slip: BaseSlipConfig::default(),
+            base_rate: BaseCommandRateConfig::default(),
         }
     }
 }
@@ -140,7 +155,7 @@ pub struct OnTheMoveOutput {
     pub arm_qd: Vec<f64>,
     /// Gripper command.
     pub gripper: GripperCommand,
-    /// World twist the QP was asked for.
+    /// World twist the QP was asked for, before the base velocity error feed-forward.
     pub twist: Twist,
     /// The base controller's velocity target.
     pub base_target: BaseVelocity,
@@ -177,6 +192,10 @@ pub struct OnTheMove {
     resolver: RedundancyResolver,
     last_twist: Twist,
     last_acceleration: Vector6<f64>,
+    /// The base velocity the QP commanded on the previous cycle.
+    last_base_command: BaseVelocity,
+    /// Rate limit on the base target handed to the QP.
+    base_rate: BaseCommandRate,
     rejected_inputs: u64,
 }
 
@@ -191,6 +210,7 @@ impl OnTheMove {
         let first_kind = tasks
             .first()
             .map_or(FinalPhaseKind::Grasp, |t| t.kind.into());
+        let base_rate = BaseCommandRate::new(&robot, config.base_rate);
         Self {
             mission: Mission::new(config.mission.clone(), tasks, start),
             base: BaseController::new(config.base.clone(), BaseModel::from_robot(&robot)),
@@ -201,6 +221,8 @@ impl OnTheMove {
             config,
             last_twist: Twist::zeros(),
             last_acceleration: Vector6::zeros(),
+            last_base_command: BaseVelocity::default(),
+            base_rate,
             rejected_inputs: 0,
         }
     }
@@ -229,6 +251,8 @@ impl OnTheMove {
     fn hold(&mut self, task_index: usize, phase: Phase) -> OnTheMoveOutput {
         self.last_twist = Twist::zeros();
         self.last_acceleration = Vector6::zeros();
+        self.last_base_command = BaseVelocity::default();
+        self.base_rate.reset();
         OnTheMoveOutput {
             base: BaseVelocity::default(),
             arm_qd: vec![0.0; self.robot.arm_dof()],
@@ -351,15 +375,24 @@ impl OnTheMove {
             .twist_rate
             .apply(&self.last_twist, &twist, input.dt);
         self.last_twist = twist;
+        let correction = slip_correction(
+            &self.robot,
+            &input.base,
+            input.arm_q,
+            input.base_velocity,
+            self.last_base_command,
+            &self.config.base_slip,
+        );
 
         let resolved = self.resolver.resolve_motm(
             &self.robot,
             &input.base,
             input.arm_q,
-            twist,
+            twist + correction,
             tool_to_target.min(self.config.max_position_error),
-            Some(base_out.command),
+            Some(self.base_rate.apply(base_out.command, input.dt)),
         );
+        self.last_base_command = resolved.base;
         let status = self.mission.step(tool_to_target, progress);
         if status.changed && status.task_index != task_index {
             // A new task starts: its final-phase controller begins from its first stage.

@@ -134,7 +134,12 @@ pub struct TrialTrace {
 }
 
 /// Column names of [`TrialTrace::cycles`].
-pub const CYCLE_COLUMNS: [&str; 21] = [
+///
+/// The last columns are MotM's internals (zero for the baselines): `phase` (0 reach, 1 final,
+/// 2 complete), `stage` (the final-phase stage, −1 outside the final phase, else 0 approach,
+/// 1 closing, 2 lifting, 3 releasing, 4 pushing, 5 retracting, 6 done), the world twist asked
+/// of the QP, the tool-to-target distance and the first arm joint's position.
+pub const CYCLE_COLUMNS: [&str; 30] = [
     "t",
     "task",
     "base_x",
@@ -156,6 +161,15 @@ pub const CYCLE_COLUMNS: [&str; 21] = [
     "gripper_opening",
     "command_v",
     "command_omega",
+    "phase",
+    "stage",
+    "twist_vx",
+    "twist_vy",
+    "twist_vz",
+    "tool_to_target",
+    "qp_slack",
+    "base_target_v",
+    "arm_q1",
 ];
 
 /// One row of a results table: the trials of one method, speed, robot and object motion.

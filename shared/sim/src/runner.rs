@@ -15,8 +15,9 @@ use std::collections::VecDeque;
 use std::time::Instant;
 
 use motm_core::camera::CameraConfig;
-use motm_core::mission::{MissionTask, TaskKind};
-use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput};
+use motm_core::final_phase::FinalPhaseStage;
+use motm_core::mission::{MissionTask, Phase, TaskKind};
+use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput, OnTheMoveOutput};
 use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
 use motm_core::reactive::{ReactiveBaseline, ReactiveConfig, ReactiveInput};
@@ -226,6 +227,39 @@ impl TargetTracker {
     }
 }
 
+/// Number of MotM internal columns at the end of a trace row.
+const MOTM_COLUMNS: usize = 9;
+
+/// MotM's internals for the trace: phase, stage, twist (linear), tool-to-target distance, slack,
+/// the base controller's speed target and the first arm joint.
+fn motm_internals(out: &OnTheMoveOutput, arm_q: &[f64]) -> [f64; MOTM_COLUMNS] {
+    let phase = match out.phase {
+        Phase::Reach => 0.0,
+        Phase::Final => 1.0,
+        Phase::Complete => 2.0,
+    };
+    let stage = out.stage.map_or(-1.0, |stage| match stage {
+        FinalPhaseStage::Approach => 0.0,
+        FinalPhaseStage::Closing => 1.0,
+        FinalPhaseStage::Lifting => 2.0,
+        FinalPhaseStage::Releasing => 3.0,
+        FinalPhaseStage::Pushing => 4.0,
+        FinalPhaseStage::Retracting => 5.0,
+        FinalPhaseStage::Done => 6.0,
+    });
+    [
+        phase,
+        stage,
+        out.twist[0],
+        out.twist[1],
+        out.twist[2],
+        out.tool_to_target,
+        out.slack_norm,
+        out.base_target.v,
+        arm_q.first().copied().unwrap_or(0.0),
+    ]
+}
+
 /// Runs one trial of `scenario` with `method`. `Err` only when the trial cannot be set up (e.g.
 /// the planning baseline on a scenario with more than one object).
 pub fn run_trial(
@@ -318,6 +352,7 @@ pub fn run_trial(
         ..TrialTrace::default()
     });
     let mut cycle = 0usize;
+    let mut internals = [0.0; MOTM_COLUMNS];
     while sim.status() == TrialStatus::Running {
         let sensors = sim.sensors().clone();
         let t = sensors.time;
@@ -342,6 +377,7 @@ pub fn run_trial(
                     gripper_opening: sensors.gripper_opening,
                     target,
                 });
+                internals = motm_internals(&out, &sensors.arm_q);
                 HardwareCommand {
                     arm_qd: out.arm_qd,
                     base: out.base,
@@ -410,7 +446,7 @@ pub fn run_trial(
                 .get(tasks.get(task_index).map_or(0, |t| t.item))
                 .map_or(Vector3::zeros(), |o| o.position());
             let odom = &sensors.base_pose;
-            trace.cycles.push(vec![
+            let mut row = vec![
                 t,
                 task_index as f64,
                 truth.base_pose.x,
@@ -432,7 +468,9 @@ pub fn run_trial(
                 truth.gripper_opening,
                 command.base.v,
                 command.base.omega,
-            ]);
+            ];
+            row.extend_from_slice(&internals);
+            trace.cycles.push(row);
         }
         if let Some(trace) = trace
             .as_mut()

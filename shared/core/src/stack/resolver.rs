@@ -12,12 +12,19 @@
 //!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`], and e_t is
 //!   capped at `max_position_error`. After the mission the reacher's twist (arm at its ready
 //!   pose) is the active one.
+//! - **Base velocity error feed-forward** as in [`crate::on_the_move`]: the twist asked of the
+//!   QP carries [`crate::base_slip::slip_correction`] for the measured base velocity against the
+//!   base command resolved on the previous cycle.
+//! - **Base target rate limit** as in [`crate::on_the_move`]
+//!   ([`crate::base_command_rate`]).
 //! - **Missing or stale input** (no mission, joint state or odometry older
 //!   than `max_state_age`, no fresh twist at all): an all-zero command, which the drivers ramp
 //!   to within their limits. A missing or stale base target is replaced by a zero target.
 
 use serde::Deserialize;
 
+use crate::base_command_rate::BaseCommandRate;
+use crate::base_slip::slip_correction;
 use crate::kinematics::BasePose;
 use crate::mission::Phase;
 use crate::on_the_move::OnTheMoveConfig;
@@ -68,6 +75,8 @@ pub struct MeasuredState<'a> {
     pub base: BasePose,
     /// Arm joint positions.
     pub arm_q: &'a [f64],
+    /// Measured base velocity (odometry).
+    pub base_velocity: BaseVelocity,
     /// Age of the older of joint state and odometry, ns.
     pub age_ns: u64,
 }
@@ -126,6 +135,10 @@ pub struct ResolverCycle {
     dt: f64,
     /// The last resolved (rate-limited) twist.
     last_twist: Twist,
+    /// The base velocity resolved on the previous cycle.
+    last_base_command: BaseVelocity,
+    /// Rate limit on the base target handed to the QP.
+    base_rate: BaseCommandRate,
     fallbacks: u64,
     stops: u64,
 }
@@ -139,9 +152,12 @@ impl ResolverCycle {
         limits: ResolverCycleConfig,
         dt: f64,
     ) -> Self {
+        let base_rate = BaseCommandRate::new(&robot, config.base_rate);
         Self {
             dt,
             last_twist: Twist::zeros(),
+            last_base_command: BaseVelocity::default(),
+            base_rate,
             resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
             robot,
             config,
@@ -206,6 +222,8 @@ impl ResolverCycle {
     fn stop(&mut self, tool_to_target: f64) -> ResolverCycleOutput {
         self.stops += 1;
         self.last_twist = Twist::zeros();
+        self.last_base_command = BaseVelocity::default();
+        self.base_rate.reset();
         ResolverCycleOutput {
             resolved: ResolverOutput {
                 base: BaseVelocity::default(),
@@ -250,14 +268,23 @@ impl ResolverCycle {
             Some((target, age_ns)) if age_ns as f64 * 1e-9 <= self.limits.max_twist_age => target,
             _ => BaseVelocity::default(),
         };
+        let correction = slip_correction(
+            &self.robot,
+            &state.base,
+            state.arm_q,
+            state.base_velocity,
+            self.last_base_command,
+            &self.config.base_slip,
+        );
         let resolved = self.resolver.resolve_motm(
             &self.robot,
             &state.base,
             state.arm_q,
-            twist,
+            twist + correction,
             tool_to_target.min(self.config.max_position_error),
-            Some(base_target),
+            Some(self.base_rate.apply(base_target, self.dt)),
         );
+        self.last_base_command = resolved.base;
         ResolverCycleOutput {
             resolved,
             twist,

@@ -282,6 +282,7 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         state: Some(MeasuredState {
             base: BasePose::default(),
             arm_q: &q,
+            base_velocity: BaseVelocity::default(),
             age_ns: 2 * MS,
         }),
         target: TargetEstimate::fixed(mission.target),
@@ -469,6 +470,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
             state: Some(MeasuredState {
                 base,
                 arm_q: &q,
+                base_velocity,
                 age_ns: 0,
             }),
             target,
@@ -493,8 +495,13 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
             phases_seen.push((expected.task_index, expected.phase));
         }
 
-        // A kinematic plant: integrate the command; the fingers close at 0.1 m/s onto a 5 cm cube.
-        base_velocity = expected.base;
+        // A kinematic plant: integrate the command, the base with a drive gain error (so both
+        // compositions feed the same velocity error forward); the fingers close at 0.1 m/s onto
+        // a 5 cm cube.
+        base_velocity = BaseVelocity {
+            v: expected.base.v * 1.05,
+            omega: expected.base.omega * 0.97,
+        };
         base.x += base_velocity.v * base.yaw.cos() * dt;
         base.y += base_velocity.v * base.yaw.sin() * dt;
         base.yaw = crate::types::wrap_angle(base.yaw + base_velocity.omega * dt);

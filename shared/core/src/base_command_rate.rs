@@ -1,0 +1,169 @@
+//! Acceleration limit on the base velocity target handed to the redundancy-resolution QP.
+//!
+//! The base controller's (v*, ω*) can jump: its polar law turns hard (up to ω_max) as the base
+//! closes on the closest-approach pose, and when a task ends the goal switches to the next
+//! target, so ω* may swing from −1.5 to +0.5 rad/s in one cycle. The base cannot follow (the
+//! LD-60 turns at most 2 rad/s²), but the QP plans the arm's motion on the assumption that it
+//! does: the arm swings to cancel a base rotation that has not happened, and the tool jerks
+//! (filtered EE accelerations of 10 m/s² at these hand-overs). Limiting the target's rate of
+//! change to the base's own acceleration limits keeps the QP's plan one the base can execute,
+//! so the arm and the base stay coordinated.
+//!
+//! Choices:
+//! - The limits are the base joints' URDF acceleration limits times
+//!   [`BaseCommandRateConfig::limit_fraction`] (1.0: the base's full capability).
+//! - **Off by default.** In `motm experiment exp1` (seeds 1–20) it brings MotM's max |a| from
+//!   8–10 m/s² down to about 2.3 m/s² at 0.4 m/s with every trial still succeeding, but on seeds
+//!   21–40 three of 120 MotM trials (dynamic cube, 0.2 and 0.4 m/s) end in a base collision that
+//!   does not happen without it: the base controller's polar law plans with instant turns, and a
+//!   base turning more slowly than it expects can clip the container. Enable it with
+//!   `[base_rate] enabled = true` once the base controller plans with the same limit.
+
+use serde::Deserialize;
+
+use crate::robot::Robot;
+use crate::types::BaseVelocity;
+
+/// Tunables of the base-target rate limit (the `[base_rate]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BaseCommandRateConfig {
+    /// Whether the target's rate of change is limited at all (false; see the module docs).
+    pub enabled: bool,
+    /// Fraction of the base joints' acceleration limits allowed for the target's change (1.0).
+    pub limit_fraction: f64,
+}
+
+impl Default for BaseCommandRateConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            limit_fraction: 1.0,
+        }
+    }
+}
+
+/// The rate limiter: remembers the last target it let through.
+#[derive(Debug, Clone)]
+pub struct BaseCommandRate {
+    config: BaseCommandRateConfig,
+    /// Largest change per second of ω (rad/s²) and of v (m/s²).
+    omega_acceleration: f64,
+    v_acceleration: f64,
+    last: BaseVelocity,
+}
+
+impl BaseCommandRate {
+    /// A limiter for `robot`'s base (its first two joints: ω, then v), starting at rest.
+    pub fn new(robot: &Robot, config: BaseCommandRateConfig) -> Self {
+        let limits = robot.limits();
+        let acceleration = |i: usize| {
+            limits
+                .get(i)
+                .map_or(f64::INFINITY, |l| l.acceleration * config.limit_fraction)
+        };
+        Self {
+            config,
+            omega_acceleration: acceleration(0),
+            v_acceleration: acceleration(1),
+            last: BaseVelocity::default(),
+        }
+    }
+
+    /// `wanted`, moved from the last target by at most the allowed change in `dt`. A non-finite
+    /// or disabled limit passes `wanted` through; a non-finite `wanted` holds the last target.
+    pub fn apply(&mut self, wanted: BaseVelocity, dt: f64) -> BaseVelocity {
+        if !(wanted.v.is_finite() && wanted.omega.is_finite()) {
+            return self.last;
+        }
+        let step = |last: f64, wanted: f64, rate: f64| {
+            let max = rate * dt;
+            if max.is_finite() && max >= 0.0 {
+                last + (wanted - last).clamp(-max, max)
+            } else {
+                wanted
+            }
+        };
+        let limited = if self.config.enabled {
+            BaseVelocity {
+                v: step(self.last.v, wanted.v, self.v_acceleration),
+                omega: step(self.last.omega, wanted.omega, self.omega_acceleration),
+            }
+        } else {
+            wanted
+        };
+        self.last = limited;
+        limited
+    }
+
+    /// Forgets the last target (the base is at rest).
+    pub fn reset(&mut self) {
+        self.last = BaseVelocity::default();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frankie() -> Robot {
+        let config_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        Robot::load(&config_dir, "frankie").expect("frankie loads")
+    }
+
+    fn enabled() -> BaseCommandRateConfig {
+        BaseCommandRateConfig {
+            enabled: true,
+            ..BaseCommandRateConfig::default()
+        }
+    }
+
+    #[test]
+    fn a_jump_in_the_target_is_spread_over_the_base_acceleration_limits() {
+        let robot = frankie();
+        let limits = robot.limits();
+        let (omega_acc, v_acc) = (limits[0].acceleration, limits[1].acceleration);
+        let mut rate = BaseCommandRate::new(&robot, enabled());
+        let dt = 0.005;
+        // From rest to 0.4 m/s, turning −1.5 rad/s.
+        let wanted = BaseVelocity {
+            v: 0.4,
+            omega: -1.5,
+        };
+        let first = rate.apply(wanted, dt);
+        assert!((first.v - v_acc * dt).abs() < 1e-12, "{first:?}");
+        assert!((first.omega + omega_acc * dt).abs() < 1e-12, "{first:?}");
+        // It gets there in (change / limit) seconds, and then holds it.
+        let cycles = ((1.5 / omega_acc).max(0.4 / v_acc) / dt).ceil() as usize;
+        let mut last = first;
+        for _ in 0..cycles {
+            let next = rate.apply(wanted, dt);
+            assert!((next.omega - last.omega).abs() <= omega_acc * dt + 1e-12);
+            assert!((next.v - last.v).abs() <= v_acc * dt + 1e-12);
+            last = next;
+        }
+        assert_eq!(last, wanted);
+        // The hand-over swing to +0.5 rad/s is also spread out, never a step.
+        let swung = rate.apply(BaseVelocity { v: 0.4, omega: 0.5 }, dt);
+        assert!((swung.omega - (-1.5 + omega_acc * dt)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn disabled_passes_through_and_bad_input_holds() {
+        let robot = frankie();
+        let mut off = BaseCommandRate::new(&robot, BaseCommandRateConfig::default());
+        let wanted = BaseVelocity { v: 0.4, omega: 1.0 };
+        assert_eq!(off.apply(wanted, 0.005), wanted);
+
+        let mut on = BaseCommandRate::new(&robot, enabled());
+        let first = on.apply(wanted, 0.005);
+        let nan = BaseVelocity {
+            v: f64::NAN,
+            omega: 0.0,
+        };
+        assert_eq!(on.apply(nan, 0.005), first);
+        on.reset();
+        let again = on.apply(wanted, 0.005);
+        assert_eq!(again, first, "after a reset it starts from rest again");
+    }
+}
