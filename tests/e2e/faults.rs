@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use motm_bus::inject::{Malformation, open_injector};
 use motm_bus::{Bus, IpcConfig, Latest, Qos};
-use motm_e2e::{motm, spawn_motm};
+use motm_e2e::{STACK_PROCESSES, motm, spawn_motm};
 use motm_msgs::{Heartbeat, services};
 
 /// The stack's services that a kill may hit. sim-world is the simulated robot and world (its
@@ -30,20 +30,6 @@ const KILLABLE: [&str; 8] = [
     "final-phase",
     "qp-resolver",
     "watchdog",
-];
-
-/// Every process of a run (its heartbeats), the supervisor included.
-const PROCESSES: [&str; 10] = [
-    "sim-world",
-    "panda-driver",
-    "ld60-driver",
-    "perception",
-    "base-planner",
-    "reacher",
-    "final-phase",
-    "qp-resolver",
-    "watchdog",
-    "supervisor",
 ];
 
 /// Control period of the frankie stack (200 Hz), ms.
@@ -262,7 +248,7 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         prefix: prefix.clone(),
     };
     let bus = Bus::open_with("e2e-bad-input", &ipc).expect("bus");
-    let mut beats: Vec<Latest<Heartbeat>> = PROCESSES
+    let mut beats: Vec<Latest<Heartbeat>> = STACK_PROCESSES
         .iter()
         .map(|p| Latest::new(&bus, &services::heartbeat(p), &Qos::default()).unwrap())
         .collect();
@@ -288,7 +274,7 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         // Three heartbeat intervals for the counts to show.
         std::thread::sleep(Duration::from_millis(400));
         let after = rejected_counts(&mut beats);
-        for (i, process) in PROCESSES.iter().enumerate() {
+        for (i, process) in STACK_PROCESSES.iter().enumerate() {
             let readers = BAD_INPUT_TOPICS
                 .iter()
                 .filter(|(_, r)| r.contains(process))

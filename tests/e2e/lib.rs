@@ -11,7 +11,7 @@ pub fn workspace_root() -> PathBuf {
 
 /// The packages of the stack's binaries: `motm run` only builds missing ones, so the tests
 /// build them all first to never run a stale binary.
-pub const STACK_PACKAGES: [&str; 11] = [
+pub const STACK_PACKAGES: [&str; 12] = [
     "motm",
     "motm-supervisor",
     "motm-sim-world",
@@ -23,6 +23,21 @@ pub const STACK_PACKAGES: [&str; 11] = [
     "motm-final-phase",
     "motm-qp-resolver",
     "motm-watchdog",
+    "motm-logger",
+];
+
+/// Every process of a Frankie run (the names of their heartbeats), the supervisor included.
+pub const STACK_PROCESSES: [&str; 10] = [
+    "sim-world",
+    "panda-driver",
+    "ld60-driver",
+    "perception",
+    "base-planner",
+    "reacher",
+    "final-phase",
+    "qp-resolver",
+    "watchdog",
+    "supervisor",
 ];
 
 /// Builds [`STACK_PACKAGES`] once per test process.

@@ -4,7 +4,7 @@
 //! behind.
 
 use motm_bus::IpcConfig;
-use motm_e2e::{motm, processes_mentioning};
+use motm_e2e::{STACK_PROCESSES, motm, processes_mentioning};
 
 /// Runs `motm run --json <extra>` with a fresh prefix; returns the report, whether the exit
 /// status was success, and stderr. Checks on the way what every run must satisfy, success or
@@ -31,18 +31,7 @@ fn run_and_check(extra: &[&str]) -> (serde_json::Value, bool, String) {
         "no truth from sim-world: {report}"
     );
     let processes = report["processes"].as_array().expect("processes");
-    for name in [
-        "sim-world",
-        "panda-driver",
-        "ld60-driver",
-        "perception",
-        "base-planner",
-        "reacher",
-        "final-phase",
-        "qp-resolver",
-        "watchdog",
-        "supervisor",
-    ] {
+    for name in STACK_PROCESSES {
         let p = processes
             .iter()
             .find(|p| p["name"] == name)
