@@ -343,30 +343,35 @@ mod tests {
     use super::*;
     use crate::foxglove as fg;
     use crate::recorder::{Payload, Record};
+    use crate::channels::ChannelRegistry;
     use crate::sink::McapSink;
     use prost::Message as _;
 
     /// A finished log of `n` pose records and `n` JSON records, in chunks of about 2 kB.
     fn log(n: u64) -> Vec<u8> {
-        let mut sink = McapSink::new(std::io::Cursor::new(Vec::new()), 2048, 1.0, 1_000).unwrap();
+        let mut sink = McapSink::new(std::io::Cursor::new(Vec::new()), 2048, 1.0).unwrap();
+        let mut channels = ChannelRegistry::new(1_000);
         for i in 0..n {
             let pose = fg::PoseInFrame {
                 timestamp: Some(fg::Timestamp::from_ns(i)),
                 frame_id: "world".into(),
                 pose: None,
             };
-            sink.write(&Record {
-                topic: "/pose".into(),
-                stamp_ns: 1_000 * i,
-                payload: Payload::Protobuf(fg::POSE_IN_FRAME, pose.encode_to_vec()),
-            })
-            .unwrap();
-            sink.write(&Record {
-                topic: "/plot".into(),
-                stamp_ns: 1_000 * i,
-                payload: Payload::Json(serde_json::json!({ "i": i })),
-            })
-            .unwrap();
+            let records = [
+                Record {
+                    topic: "/pose".into(),
+                    stamp_ns: 1_000 * i,
+                    payload: Payload::Protobuf(fg::POSE_IN_FRAME, pose.encode_to_vec()),
+                },
+                Record {
+                    topic: "/plot".into(),
+                    stamp_ns: 1_000 * i,
+                    payload: Payload::Json(serde_json::json!({ "i": i })),
+                },
+            ];
+            for record in &records {
+                sink.write(&channels.encode(record)).unwrap();
+            }
         }
         sink.finish().unwrap().into_inner()
     }

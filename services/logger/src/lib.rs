@@ -4,14 +4,18 @@
 //! `motm log info` and `motm log check`.
 //!
 //! - [`recorder`]: the pure step, samples → records (derived 3D channels, decimation).
-//! - [`sink`]: records → MCAP channels and chunks.
+//! - [`channels`]: records → channels and encoded messages, shared by the sinks.
+//! - [`sink`]: encoded messages → MCAP channels and chunks.
+//! - [`live`]: encoded messages → the Foxglove WebSocket live view.
 //! - [`inspect`]: scanning a (possibly cut-off) log; [`protobuf_check`]: decoding with the
 //!   schema stored in the file.
 //! - [`foxglove`], [`json`]: the message encodings.
 
+pub mod channels;
 pub mod foxglove;
 pub mod inspect;
 pub mod json;
+pub mod live;
 pub mod protobuf_check;
 pub mod recorder;
 pub mod sink;
@@ -19,3 +23,5 @@ pub mod sink;
 pub use inspect::{LogSummary, scan};
 pub use recorder::{LoggerConfig, Record, Recorder, SceneLayout};
 pub use sink::McapSink;
+pub use channels::ChannelRegistry;
+pub use live::{LiveConfig, LiveSink};

@@ -1,5 +1,7 @@
 //! `logger`: attaches to every iceoryx2 service of a running stack (the prefix from
-//! `$MOTM_IPC_PREFIX`) and writes what it reads to a chunked MCAP file until SIGTERM/SIGINT.
+//! `$MOTM_IPC_PREFIX`) and writes what it reads to a chunked MCAP file (`--out`), serves it
+//! live with the Foxglove WebSocket protocol (`--live ADDR`), or both, until SIGTERM/SIGINT.
+//! Each record is encoded once ([`ChannelRegistry`]) for both.
 //!
 //! It never slows a publisher: it only opens existing services (never creates one or asks for
 //! settings), takes one subscriber slot per service, and the services overflow safely (a full
@@ -10,6 +12,7 @@
 
 use std::collections::BTreeSet;
 use std::fs::File;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use clap::Parser;
@@ -17,7 +20,7 @@ use iceoryx2::prelude::*;
 use motm_bus::{Bus, BusError, Flow, LoopConfig, ServiceLoop, Subscriber};
 use motm_logger::json::ToJson;
 use motm_logger::recorder::{Recorder, topics};
-use motm_logger::{LoggerConfig, McapSink, Record, SceneLayout};
+use motm_logger::{ChannelRegistry, LiveSink, LoggerConfig, McapSink, Record, SceneLayout};
 use motm_msgs::{self as msgs, Message, services};
 use serde_json::json;
 
@@ -35,8 +38,12 @@ const STATS_PERIOD_NS: u64 = 1_000_000_000;
 #[command(name = PROCESS, about = "Log every iceoryx2 service of a running motm stack to an MCAP file")]
 struct Cli {
     /// Output MCAP file (overwritten).
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "live")]
+    out: Option<PathBuf>,
+    /// Serve the channels live with the Foxglove WebSocket protocol on this address, e.g.
+    /// `127.0.0.1:8765` (port 0: any free port, printed at start).
+    #[arg(long, value_name = "ADDR")]
+    live: Option<SocketAddr>,
     /// Folder holding robots/ and scenarios/ (default: $MOTM_CONFIG_DIR, ./config, or the source tree's config/).
     #[arg(long)]
     config_dir: Option<PathBuf>,
@@ -282,16 +289,92 @@ fn main() {
     }
 }
 
+/// Where the records go: each is encoded once, then written to the file and the live view.
+struct Sinks {
+    channels: ChannelRegistry,
+    file: Option<(PathBuf, McapSink<File>)>,
+    live: Option<LiveSink>,
+}
+
+impl Sinks {
+    /// Creates the file and binds the live view that `cli` asks for.
+    fn open(cli: &Cli, config: &LoggerConfig) -> Result<Self, String> {
+        let file = match &cli.out {
+            Some(path) => {
+                let name = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+                let file = File::create(path).map_err(|e| name(&e))?;
+                let sink = McapSink::new(file, config.chunk_bytes, config.flush_interval_s)
+                    .map_err(|e| name(&e))?;
+                Some((path.clone(), sink))
+            }
+            None => None,
+        };
+        let live = match cli.live {
+            Some(addr) => {
+                let live = LiveSink::bind(addr, config.live.clone())
+                    .map_err(|e| format!("--live {addr}: {e}"))?;
+                let bound = live.local_addr().map_err(|e| format!("--live {addr}: {e}"))?;
+                eprintln!("{PROCESS}: Foxglove WebSocket live view on ws://{bound}");
+                Some(live)
+            }
+            None => None,
+        };
+        Ok(Self {
+            channels: ChannelRegistry::new(unix_offset_ns()),
+            file,
+            live,
+        })
+    }
+
+    /// Encodes `record` and hands it to every sink.
+    fn write(&mut self, record: &Record) -> Result<(), String> {
+        let message = self.channels.encode(record);
+        if let Some((path, file)) = &mut self.file {
+            file.write(&message)
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+        }
+        if let Some(live) = &mut self.live {
+            live.write(&message);
+        }
+        Ok(())
+    }
+
+    /// End of a cycle at monotonic `now_ns`: writes out a due chunk, serves the live clients.
+    fn end_cycle(&mut self, now_ns: u64) -> Result<(), String> {
+        if let Some(live) = &mut self.live {
+            live.poll(now_ns);
+        }
+        match &mut self.file {
+            Some((path, file)) => file
+                .flush_if_due(now_ns)
+                .map_err(|e| format!("{}: {e}", path.display())),
+            None => Ok(()),
+        }
+    }
+
+    /// Finishes the file; what was written, for the exit message.
+    fn finish(self) -> Result<String, String> {
+        let mut done = format!("encoded {} messages", self.channels.encoded);
+        if let Some((path, file)) = self.file {
+            let written = file.written;
+            file.finish()
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+            done += &format!("; wrote {written} to {}", path.display());
+        }
+        if let Some(live) = self.live {
+            let stats = live.stats();
+            done += &format!(
+                "; live view: {} connections, {} messages sent, {} dropped",
+                stats.connections, stats.sent_messages, stats.dropped_messages
+            );
+        }
+        Ok(done)
+    }
+}
+
 /// Taps the bus until SIGTERM/SIGINT, then finishes the file.
 fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), String> {
-    let file = File::create(&cli.out).map_err(|e| format!("{}: {e}", cli.out.display()))?;
-    let mut sink = McapSink::new(
-        file,
-        config.chunk_bytes,
-        config.flush_interval_s,
-        unix_offset_ns(),
-    )
-    .map_err(|e| format!("{}: {e}", cli.out.display()))?;
+    let mut sinks = Sinks::open(cli, config)?;
     let bus = Bus::open(PROCESS).map_err(|e| e.to_string())?;
     let mut taps = fixed_taps();
     let mut heartbeats = BTreeSet::new();
@@ -322,14 +405,14 @@ fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), 
             }
             if last_stats.is_none_or(|t| now.saturating_sub(t) >= STATS_PERIOD_NS) {
                 last_stats = Some(now);
-                records.push(stats(&taps, &sink, now));
+                records.push(stats(&taps, &sinks, now));
             }
             let written = records
                 .drain(..)
-                .try_for_each(|record| sink.write(&record))
-                .and_then(|()| sink.flush_if_due(now));
+                .try_for_each(|record| sinks.write(&record))
+                .and_then(|()| sinks.end_cycle(now));
             if let Err(e) = written {
-                failure = Some(format!("{}: {e}", cli.out.display()));
+                failure = Some(e);
                 return Flow::Stop;
             }
             Flow::Continue
@@ -338,18 +421,13 @@ fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), 
     if let Some(failure) = failure {
         return Err(failure);
     }
-    let written = sink.written;
-    sink.finish()
-        .map_err(|e| format!("{}: {e}", cli.out.display()))?;
-    eprintln!(
-        "{PROCESS}: {exit:?}; wrote {written} messages to {}",
-        cli.out.display()
-    );
+    let done = sinks.finish()?;
+    eprintln!("{PROCESS}: {exit:?}; {done}");
     Ok(())
 }
 
 /// The `/logger/stats` record at `now_ns`.
-fn stats(taps: &[Box<dyn Source>], sink: &McapSink<File>, now_ns: u64) -> Record {
+fn stats(taps: &[Box<dyn Source>], sinks: &Sinks, now_ns: u64) -> Record {
     let mut lost_by_service = serde_json::Map::new();
     let (mut received, mut lost, mut attached) = (0, 0, 0);
     for tap in taps {
@@ -361,6 +439,7 @@ fn stats(taps: &[Box<dyn Source>], sink: &McapSink<File>, now_ns: u64) -> Record
             lost_by_service.insert(name.to_owned(), l.into());
         }
     }
+    let live = sinks.live.as_ref().map(LiveSink::stats).unwrap_or_default();
     Record {
         topic: topics::LOGGER_STATS.into(),
         stamp_ns: now_ns,
@@ -368,9 +447,12 @@ fn stats(taps: &[Box<dyn Source>], sink: &McapSink<File>, now_ns: u64) -> Record
             "services_with_samples": attached,
             "samples_received": received,
             "samples_lost": lost,
-            "records_written": sink.written,
-            "raised_stamps": sink.raised_stamps,
+            "records_written": sinks.channels.encoded,
+            "raised_stamps": sinks.channels.raised_stamps,
             "lost_by_service": lost_by_service,
+            "live_clients": live.clients,
+            "live_sent_messages": live.sent_messages,
+            "live_dropped_messages": live.dropped_messages,
         })),
     }
 }

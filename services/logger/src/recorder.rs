@@ -82,6 +82,8 @@ pub struct LoggerConfig {
     pub chunk_bytes: u64,
     /// Longest time a chunk stays open before it is written out, s.
     pub flush_interval_s: f64,
+    /// The live view's settings (`[live]`; used with `logger --live ADDR`).
+    pub live: crate::live::LiveConfig,
 }
 
 impl Default for LoggerConfig {
@@ -96,6 +98,7 @@ impl Default for LoggerConfig {
             trail_points: 400,
             chunk_bytes: 512 * 1024,
             flush_interval_s: 1.0,
+            live: crate::live::LiveConfig::default(),
         }
     }
 }

@@ -1,55 +1,32 @@
-//! Writes [`Record`]s to a chunked MCAP file: one channel per topic, made on its first record
-//! (with the foxglove schema, or a jsonschema inferred from the first JSON message), chunks
-//! written out when full or `flush_interval_s` after they were opened, so a killed logger
-//! leaves a file readable up to its last written chunk.
-//!
-//! Log times are the records' own stamps moved from `CLOCK_MONOTONIC` to Unix time by one
-//! offset taken at start (so Foxglove shows wall-clock times and the spacing of the samples is
-//! exactly theirs). A stamp earlier than the channel's previous
-//! one (a restarted publisher whose first sample predates the last one logged) is raised to
-//! it, so log times never decrease within a channel; such raises are counted, and the publish
-//! time keeps the sample's own stamp.
+//! Writes encoded records ([`EncodedMessage`]) to a chunked MCAP file: each channel of the
+//! [`ChannelRegistry`](crate::channels::ChannelRegistry) is added to the file on its first
+//! message (one schema per foxglove schema, one per JSON channel); chunks are written out when
+//! full or `flush_interval_s` after they were opened, so a killed logger leaves a file readable
+//! up to its last written chunk.
 
 use std::collections::HashMap;
 use std::io::{Seek, Write};
 
 use mcap::records::MessageHeader;
 
-use crate::foxglove::Schema;
-use crate::json::schema_of;
-use crate::recorder::{Payload, Record};
-
-/// A channel of the file.
-struct Channel {
-    id: u16,
-    sequence: u32,
-    last_log_time_ns: u64,
-}
+use crate::channels::{ChannelInfo, EncodedMessage, PROTOBUF};
 
 /// The MCAP writer with its channels.
 pub struct McapSink<W: Write + Seek> {
     writer: mcap::Writer<W>,
-    channels: HashMap<String, Channel>,
-    protobuf_schemas: HashMap<&'static str, u16>,
-    /// Added to a monotonic stamp to get Unix time, ns.
-    unix_offset_ns: i128,
+    /// File channel id by registry channel id.
+    channels: HashMap<u16, u16>,
+    protobuf_schemas: HashMap<String, u16>,
     flush_interval_ns: u64,
     last_flush_ns: Option<u64>,
-    /// Records whose stamp was raised to keep the channel's log times non-decreasing.
-    pub raised_stamps: u64,
     /// Records written.
     pub written: u64,
 }
 
 impl<W: Write + Seek> McapSink<W> {
     /// Starts a file on `out`: chunks of about `chunk_bytes`, written out at least every
-    /// `flush_interval_s`; `unix_offset_ns` moves monotonic stamps to Unix time.
-    pub fn new(
-        out: W,
-        chunk_bytes: u64,
-        flush_interval_s: f64,
-        unix_offset_ns: i128,
-    ) -> Result<Self, mcap::McapError> {
+    /// `flush_interval_s`.
+    pub fn new(out: W, chunk_bytes: u64, flush_interval_s: f64) -> Result<Self, mcap::McapError> {
         let writer = mcap::WriteOptions::new()
             .compression(None)
             .chunk_size(Some(chunk_bytes))
@@ -62,52 +39,30 @@ impl<W: Write + Seek> McapSink<W> {
             writer,
             channels: HashMap::new(),
             protobuf_schemas: HashMap::new(),
-            unix_offset_ns,
             flush_interval_ns: (flush_interval_s.max(0.0) * 1e9) as u64,
             last_flush_ns: None,
-            raised_stamps: 0,
             written: 0,
         })
     }
 
-    /// Writes `record`.
-    pub fn write(&mut self, record: &Record) -> Result<(), mcap::McapError> {
-        let unix_ns = (i128::from(record.stamp_ns) + self.unix_offset_ns).max(0) as u64;
-        let data = match &record.payload {
-            Payload::Protobuf(_, bytes) => std::borrow::Cow::Borrowed(bytes.as_slice()),
-            Payload::Json(value) => std::borrow::Cow::Owned(value.to_string().into_bytes()),
+    /// Writes `message` (adding its channel to the file on its first message).
+    pub fn write(&mut self, message: &EncodedMessage) -> Result<(), mcap::McapError> {
+        let channel_id = match self.channels.get(&message.channel.id) {
+            Some(&id) => id,
+            None => {
+                let id = self.add_channel(message.channel)?;
+                self.channels.insert(message.channel.id, id);
+                id
+            }
         };
-        if !self.channels.contains_key(&record.topic) {
-            let id = self.add_channel(record)?;
-            self.channels.insert(
-                record.topic.clone(),
-                Channel {
-                    id,
-                    sequence: 0,
-                    last_log_time_ns: 0,
-                },
-            );
-        }
-        let channel = self
-            .channels
-            .get_mut(&record.topic)
-            .expect("inserted above");
-        let log_time = if unix_ns < channel.last_log_time_ns {
-            self.raised_stamps += 1;
-            channel.last_log_time_ns
-        } else {
-            unix_ns
-        };
-        channel.last_log_time_ns = log_time;
-        channel.sequence = channel.sequence.wrapping_add(1);
         self.writer.write_to_known_channel(
             &MessageHeader {
-                channel_id: channel.id,
-                sequence: channel.sequence,
-                log_time,
-                publish_time: unix_ns,
+                channel_id,
+                sequence: message.sequence,
+                log_time: message.log_time_ns,
+                publish_time: message.publish_time_ns,
             },
-            &data,
+            &message.data,
         )?;
         self.written += 1;
         Ok(())
@@ -130,32 +85,31 @@ impl<W: Write + Seek> McapSink<W> {
         Ok(self.writer.into_inner())
     }
 
-    /// Adds the schema (once per foxglove schema) and the channel of `record`'s topic.
-    fn add_channel(&mut self, record: &Record) -> Result<u16, mcap::McapError> {
-        let (schema_id, encoding) = match &record.payload {
-            Payload::Protobuf(Schema { name, descriptor }, _) => {
-                let id = match self.protobuf_schemas.get(name) {
-                    Some(&id) => id,
-                    None => {
-                        let id = self.writer.add_schema(name, "protobuf", descriptor)?;
-                        self.protobuf_schemas.insert(name, id);
-                        id
-                    }
-                };
-                (id, "protobuf")
-            }
-            Payload::Json(value) => {
-                let mut schema = schema_of(value);
-                schema["title"] = record.topic.clone().into();
+    /// Adds the schema (once per foxglove schema) and the channel `channel`.
+    fn add_channel(&mut self, channel: &ChannelInfo) -> Result<u16, mcap::McapError> {
+        let known = (channel.schema_encoding == PROTOBUF)
+            .then(|| self.protobuf_schemas.get(&channel.schema_name).copied())
+            .flatten();
+        let schema_id = match known {
+            Some(id) => id,
+            None => {
                 let id = self.writer.add_schema(
-                    &record.topic,
-                    "jsonschema",
-                    schema.to_string().as_bytes(),
+                    &channel.schema_name,
+                    channel.schema_encoding,
+                    &channel.schema,
                 )?;
-                (id, "json")
+                if channel.schema_encoding == PROTOBUF {
+                    self.protobuf_schemas
+                        .insert(channel.schema_name.clone(), id);
+                }
+                id
             }
         };
-        self.writer
-            .add_channel(schema_id, &record.topic, encoding, &Default::default())
+        self.writer.add_channel(
+            schema_id,
+            &channel.topic,
+            channel.message_encoding,
+            &Default::default(),
+        )
     }
 }
