@@ -200,7 +200,8 @@ mod tests {
     fn an_earlier_stamp_is_raised_to_the_channels_last_log_time_and_counted() {
         let mut registry = ChannelRegistry::new(0);
         assert_eq!(registry.encode(&json_record("/a", 100)).log_time_ns, 100);
-        let late = registry.encode(&json_record("/a", 40));
+        let record = json_record("/a", 40);
+        let late = registry.encode(&record);
         assert_eq!((late.log_time_ns, late.publish_time_ns), (100, 40));
         // Another channel keeps its own times.
         assert_eq!(registry.encode(&json_record("/b", 40)).log_time_ns, 40);
