@@ -208,6 +208,8 @@ fn a_client_gets_server_info_the_channels_and_the_messages_it_subscribed_to() {
     let server = Server::start(LiveConfig::default());
     server.feed(pose(1_000, 0.0));
     server.feed(plot("/qp", 1_000, 0.0));
+    // Commands are handled in order: once the counters come, both channels exist.
+    server.stats();
     let mut client = connect(server.addr);
 
     let info = next_text(&mut client);
@@ -326,6 +328,7 @@ fn a_client_that_does_not_read_loses_its_oldest_messages_and_the_sink_never_wait
     };
     let server = Server::start(config);
     server.feed(plot("/image", 0, 0.0));
+    server.stats();
     let mut client = connect(server.addr);
     assert_eq!(next_text(&mut client)["op"], "serverInfo");
     let id = channel(&next_text(&mut client), "/image")["id"].clone();
