@@ -35,10 +35,14 @@ const STATS_PERIOD_NS: u64 = 1_000_000_000;
 
 /// Command line.
 #[derive(Debug, Parser)]
-#[command(name = PROCESS, about = "Log every iceoryx2 service of a running motm stack to an MCAP file")]
+#[command(
+    name = PROCESS,
+    about = "Log every iceoryx2 service of a running motm stack to an MCAP file, serve it live to Foxglove, or both",
+    group(clap::ArgGroup::new("output").required(true).multiple(true).args(["out", "live"]))
+)]
 struct Cli {
     /// Output MCAP file (overwritten).
-    #[arg(long, required_unless_present = "live")]
+    #[arg(long)]
     out: Option<PathBuf>,
     /// Serve the channels live with the Foxglove WebSocket protocol on this address, e.g.
     /// `127.0.0.1:8765` (port 0: any free port, printed at start).

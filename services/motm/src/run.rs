@@ -61,6 +61,16 @@ pub struct RunArgs {
     /// Also log every service of the run to this MCAP file (the `logger` process).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Also serve every service of the run live with the Foxglove WebSocket protocol on ADDR
+    /// (default 127.0.0.1:8765; Foxglove: Open connection → `ws://ADDR`). With `--mcap`, the
+    /// same logger process writes the file and serves the view.
+    #[arg(
+        long,
+        value_name = "ADDR",
+        num_args = 0..=1,
+        default_missing_value = crate::run_mcap::DEFAULT_LIVE_ADDR
+    )]
+    pub live: Option<std::net::SocketAddr>,
 }
 
 /// One process's figures, from its last heartbeat and the supervisor's table.
@@ -431,16 +441,21 @@ pub fn run_stack(
         .arg(&bin_dir)
         .env(motm_bus::PREFIX_ENV, &ipc.prefix);
     crate::run_mcap::exit_with_parent(&mut command);
-    let logger = match &args.mcap {
-        Some(out) => Some(crate::run_mcap::LoggerProcess::start(
+    let with_logger = args.mcap.is_some() || args.live.is_some();
+    let logger = if with_logger {
+        Some(crate::run_mcap::LoggerProcess::start(
             &bin_dir,
             &ipc.prefix,
-            out,
+            crate::run_mcap::LoggerOutputs {
+                mcap: args.mcap.as_deref(),
+                live: args.live,
+            },
             config_dir,
             &stack.robot,
             &scenario_path,
-        )?),
-        None => None,
+        )?)
+    } else {
+        None
     };
     let mut supervisor = command
         .spawn()
@@ -448,7 +463,7 @@ pub fn run_stack(
 
     let mut names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
     names.push("supervisor".into());
-    if args.mcap.is_some() {
+    if with_logger {
         names.push("logger".into());
     }
     let watched = (|| -> Result<_, motm_bus::BusError> {

@@ -1,7 +1,9 @@
-//! `motm run --mcap FILE`: the logger process beside the stack. It is started before the
-//! supervisor (it attaches to each service as it appears) and stopped before it (SIGTERM: the
-//! logger writes its last chunk and the summary), so the file covers the whole run.
+//! `motm run --mcap FILE` / `--live [ADDR]`: the logger process beside the stack (one process
+//! for both: it writes the file and serves the Foxglove WebSocket live view). It is started
+//! before the supervisor (it attaches to each service as it appears) and stopped before it
+//! (SIGTERM: the logger writes its last chunk and the summary), so the file covers the whole run.
 
+use std::net::{SocketAddr, TcpListener};
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command};
@@ -13,6 +15,18 @@ use crate::CliError;
 
 /// Name of the logger binary.
 const LOGGER: &str = "logger";
+
+/// Address of `motm run --live` without a value: Foxglove's default, on the loopback only.
+pub const DEFAULT_LIVE_ADDR: &str = "127.0.0.1:8765";
+
+/// What the logger makes: an MCAP file, a live view, or both.
+#[derive(Debug, Clone, Copy)]
+pub struct LoggerOutputs<'a> {
+    /// `--mcap FILE`.
+    pub mcap: Option<&'a Path>,
+    /// `--live ADDR`.
+    pub live: Option<SocketAddr>,
+}
 
 /// Makes `command`'s process get SIGTERM when this process exits, so no child outlives a
 /// `motm run` that was killed.
@@ -38,19 +52,26 @@ pub struct LoggerProcess {
 }
 
 impl LoggerProcess {
-    /// Starts `logger --out <out>` from `bin_dir` on iceoryx2 prefix `prefix` (building it with
-    /// `$CARGO` when it is missing and `motm` runs through Cargo).
+    /// Starts `logger [--out FILE] [--live ADDR]` from `bin_dir` on iceoryx2 prefix `prefix`
+    /// (building it with `$CARGO` when it is missing and `motm` runs through Cargo).
     pub fn start(
         bin_dir: &Path,
         prefix: &str,
-        out: &Path,
+        outputs: LoggerOutputs,
         config_dir: &Path,
         robot: &str,
         scenario: &Path,
     ) -> Result<Self, CliError> {
-        // A path that cannot be written is bad input, found before the stack starts.
-        std::fs::File::create(out)
-            .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
+        // A path that cannot be written or an address that cannot be listened on is bad input,
+        // found before the stack starts.
+        if let Some(out) = outputs.mcap {
+            std::fs::File::create(out)
+                .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
+        }
+        if let Some(addr) = outputs.live {
+            TcpListener::bind(addr)
+                .map_err(|e| CliError::BadInput(format!("--live {addr}: {e}")))?;
+        }
         if !binaries::missing(bin_dir, [LOGGER]).is_empty()
             && let Some(cargo) = std::env::var_os("CARGO")
             && let Err(e) =
@@ -59,9 +80,13 @@ impl LoggerProcess {
             eprintln!("motm run: {e}");
         }
         let mut command = Command::new(binaries::binary_path(bin_dir, LOGGER));
+        if let Some(out) = outputs.mcap {
+            command.arg("--out").arg(out);
+        }
+        if let Some(addr) = outputs.live {
+            command.arg("--live").arg(addr.to_string());
+        }
         command
-            .arg("--out")
-            .arg(out)
             .arg("--config-dir")
             .arg(config_dir)
             .arg("--robot")
