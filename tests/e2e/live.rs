@@ -11,12 +11,11 @@ use std::process::Child;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use motm_e2e::{processes_mentioning, spawn_motm};
-use motm_logger::live::{MESSAGE_DATA, MESSAGE_DATA_HEADER, SUBPROTOCOL};
+use motm_logger::live::{SUBPROTOCOL, client_request, parse_message_data};
 use motm_logger::protobuf_check::SchemaDecoder;
 use motm_logger::recorder::topics;
 use motm_msgs::services;
 use serde_json::{Value, json};
-use tungstenite::client::IntoClientRequest;
 use tungstenite::{Message, WebSocket};
 
 /// One stack at a time on the machine's few cores.
@@ -50,11 +49,7 @@ fn connect(addr: SocketAddr, run: &mut Child) -> WebSocket<TcpStream> {
     loop {
         if let Ok(stream) = TcpStream::connect(addr) {
             stream.set_read_timeout(Some(PATIENCE)).unwrap();
-            let mut request = format!("ws://{addr}").into_client_request().unwrap();
-            request
-                .headers_mut()
-                .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-            let (socket, response) = tungstenite::client(request, stream)
+            let (socket, response) = tungstenite::client(client_request(addr), stream)
                 .unwrap_or_else(|e| panic!("handshake with the live view: {e}"));
             assert_eq!(
                 response.headers().get("Sec-WebSocket-Protocol").unwrap(),
@@ -89,12 +84,14 @@ fn watch(client: &mut WebSocket<TcpStream>, topics: &[String]) -> BTreeMap<Strin
     let mut subscriptions: BTreeMap<u32, Watched> = BTreeMap::new();
     let mut server_info = false;
     let start = Instant::now();
-    let now_ns = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos() as u64;
+    let now_ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
     let counts = |s: &BTreeMap<u32, Watched>| -> BTreeMap<String, u64> {
         s.values().map(|w| (w.topic.clone(), w.messages)).collect()
     };
-    while subscriptions.len() < topics.len()
-        || subscriptions.values().any(|w| w.messages < WANTED)
+    while subscriptions.len() < topics.len() || subscriptions.values().any(|w| w.messages < WANTED)
     {
         assert!(
             start.elapsed() < PATIENCE,
@@ -143,11 +140,8 @@ fn watch(client: &mut WebSocket<TcpStream>, topics: &[String]) -> BTreeMap<Strin
                 }
             }
             Message::Binary(bytes) => {
-                assert!(bytes.len() >= MESSAGE_DATA_HEADER, "short frame");
-                assert_eq!(bytes[0], MESSAGE_DATA);
-                let id = u32::from_le_bytes(bytes[1..5].try_into().unwrap());
-                let log_time_ns = u64::from_le_bytes(bytes[5..13].try_into().unwrap());
-                let payload = &bytes[MESSAGE_DATA_HEADER..];
+                let (id, log_time_ns, payload) =
+                    parse_message_data(&bytes).expect("a messageData frame");
                 let watched = subscriptions
                     .get_mut(&id)
                     .unwrap_or_else(|| panic!("a message of unknown subscription {id}"));
@@ -227,7 +221,10 @@ fn finish(run: Child, prefix: &str) -> Value {
         .collect();
     assert_eq!(loggers.len(), 1, "{report}");
     assert!(loggers[0]["cycles"].as_u64().unwrap() > 0, "{report}");
-    assert!(processes_mentioning(prefix).is_empty(), "the run left processes");
+    assert!(
+        processes_mentioning(prefix).is_empty(),
+        "the run left processes"
+    );
     report
 }
 
@@ -293,7 +290,11 @@ fn with_mcap_and_live_one_logger_serves_the_view_and_writes_a_complete_file() {
     assert!(summary.complete, "the logger did not finish the file");
     assert!(summary.problems().is_empty(), "{:?}", summary.problems());
     assert!(
-        summary.channel(topics::TF).expect("/tf in the file").messages > counts[topics::TF],
+        summary
+            .channel(topics::TF)
+            .expect("/tf in the file")
+            .messages
+            > counts[topics::TF],
         "the file holds the whole run, the client only what came after it subscribed"
     );
     let _ = std::fs::remove_file(&path);

@@ -341,9 +341,9 @@ pub fn info_json(summary: &LogSummary) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::channels::ChannelRegistry;
     use crate::foxglove as fg;
     use crate::recorder::{Payload, Record};
-    use crate::channels::ChannelRegistry;
     use crate::sink::McapSink;
     use prost::Message as _;
 

@@ -20,8 +20,8 @@ pub mod protobuf_check;
 pub mod recorder;
 pub mod sink;
 
+pub use channels::ChannelRegistry;
 pub use inspect::{LogSummary, scan};
+pub use live::{LiveConfig, LiveSink};
 pub use recorder::{LoggerConfig, Record, Recorder, SceneLayout};
 pub use sink::McapSink;
-pub use channels::ChannelRegistry;
-pub use live::{LiveConfig, LiveSink};

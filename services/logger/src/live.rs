@@ -97,7 +97,11 @@ pub struct LiveStats {
 struct Subprotocol;
 
 impl tungstenite::handshake::server::Callback for Subprotocol {
-    fn on_request(self, request: &Request, mut response: Response) -> Result<Response, ErrorResponse> {
+    fn on_request(
+        self,
+        request: &Request,
+        mut response: Response,
+    ) -> Result<Response, ErrorResponse> {
         let offered: Vec<&str> = request
             .headers()
             .get_all("Sec-WebSocket-Protocol")
@@ -185,7 +189,9 @@ impl Client {
         match request["op"].as_str() {
             Some("subscribe") => {
                 for subscription in request["subscriptions"].as_array().into_iter().flatten() {
-                    let id = subscription["id"].as_u64().and_then(|v| u32::try_from(v).ok());
+                    let id = subscription["id"]
+                        .as_u64()
+                        .and_then(|v| u32::try_from(v).ok());
                     let channel = subscription["channelId"]
                         .as_u64()
                         .and_then(|v| u16::try_from(v).ok())
@@ -243,6 +249,31 @@ pub fn message_data(subscription: u32, log_time_ns: u64, data: &[u8]) -> Vec<u8>
     frame.extend_from_slice(&log_time_ns.to_le_bytes());
     frame.extend_from_slice(data);
     frame
+}
+
+/// A `messageData` frame split into subscription id, log time (ns) and message bytes; `None`
+/// when `frame` is not one.
+pub fn parse_message_data(frame: &[u8]) -> Option<(u32, u64, &[u8])> {
+    if frame.len() < MESSAGE_DATA_HEADER || frame[0] != MESSAGE_DATA {
+        return None;
+    }
+    let subscription = u32::from_le_bytes(frame[1..5].try_into().ok()?);
+    let log_time_ns = u64::from_le_bytes(frame[5..13].try_into().ok()?);
+    Some((subscription, log_time_ns, &frame[MESSAGE_DATA_HEADER..]))
+}
+
+/// The WebSocket request a client of the live view at `addr` sends: it offers the Foxglove
+/// subprotocol (for `tungstenite::client`).
+pub fn client_request(addr: SocketAddr) -> tungstenite::handshake::client::Request {
+    use tungstenite::client::IntoClientRequest;
+    let mut request = format!("ws://{addr}")
+        .into_client_request()
+        .expect("a ws:// URL of a socket address is valid");
+    request.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        HeaderValue::from_static(SUBPROTOCOL),
+    );
+    request
 }
 
 /// The `advertise` entry of `channel`: a protobuf schema goes base64-encoded, a jsonschema
@@ -406,7 +437,10 @@ impl LiveSink {
     /// Keeps a handshake that is still going on, or makes a client of a finished one.
     fn finish_handshake(
         &mut self,
-        result: Result<WebSocket<TcpStream>, HandshakeError<ServerHandshake<TcpStream, Subprotocol>>>,
+        result: Result<
+            WebSocket<TcpStream>,
+            HandshakeError<ServerHandshake<TcpStream, Subprotocol>>,
+        >,
         started_ns: u64,
     ) {
         match result {
@@ -430,5 +464,53 @@ impl LiveSink {
             }),
             Err(HandshakeError::Failure(_)) => self.stats.refused += 1,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_message_data_frame_parses_back_and_other_bytes_do_not() {
+        let frame = message_data(0x0102_0304, 0x1122_3344_5566_7788, b"abc");
+        assert_eq!(frame[..5], [MESSAGE_DATA, 0x04, 0x03, 0x02, 0x01]);
+        assert_eq!(
+            parse_message_data(&frame),
+            Some((0x0102_0304, 0x1122_3344_5566_7788, &b"abc"[..]))
+        );
+        assert_eq!(parse_message_data(&frame[..12]), None);
+        let mut other = frame.clone();
+        other[0] = 0x02;
+        assert_eq!(parse_message_data(&other), None);
+    }
+
+    #[test]
+    fn protobuf_schemas_are_advertised_in_base64_and_jsonschemas_as_text() {
+        let mut registry = crate::ChannelRegistry::new(0);
+        let pose = crate::Record {
+            topic: "/pose".into(),
+            stamp_ns: 0,
+            payload: crate::recorder::Payload::Protobuf(crate::foxglove::POSE_IN_FRAME, vec![]),
+        };
+        let entry = advertisement(registry.encode(&pose).channel);
+        let schema = entry["schema"].as_str().unwrap();
+        assert_eq!(
+            data_encoding::BASE64.decode(schema.as_bytes()).unwrap(),
+            crate::foxglove::POSE_IN_FRAME.descriptor
+        );
+        assert_eq!(entry["schemaEncoding"], "protobuf");
+        let plot = crate::Record {
+            topic: "/plot".into(),
+            stamp_ns: 0,
+            payload: crate::recorder::Payload::Json(json!({ "v": 1.0 })),
+        };
+        let entry = advertisement(registry.encode(&plot).channel);
+        let schema: Value = serde_json::from_str(entry["schema"].as_str().unwrap()).unwrap();
+        assert_eq!(schema["properties"]["v"]["type"], "number");
+        assert_eq!(
+            (entry["id"].as_u64(), &entry["encoding"]),
+            (Some(1), &json!("json"))
+        );
     }
 }

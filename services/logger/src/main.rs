@@ -317,7 +317,9 @@ impl Sinks {
             Some(addr) => {
                 let live = LiveSink::bind(addr, config.live.clone())
                     .map_err(|e| format!("--live {addr}: {e}"))?;
-                let bound = live.local_addr().map_err(|e| format!("--live {addr}: {e}"))?;
+                let bound = live
+                    .local_addr()
+                    .map_err(|e| format!("--live {addr}: {e}"))?;
                 eprintln!("{PROCESS}: Foxglove WebSocket live view on ws://{bound}");
                 Some(live)
             }

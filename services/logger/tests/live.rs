@@ -8,13 +8,12 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use motm_logger::foxglove as fg;
-use motm_logger::live::{LiveStats, MESSAGE_DATA, MESSAGE_DATA_HEADER, SUBPROTOCOL};
+use motm_logger::live::{LiveStats, SUBPROTOCOL, client_request, parse_message_data};
 use motm_logger::protobuf_check::SchemaDecoder;
 use motm_logger::recorder::{Payload, Record};
 use motm_logger::{ChannelRegistry, LiveConfig, LiveSink};
 use prost::Message as _;
 use serde_json::{Value, json};
-use tungstenite::client::IntoClientRequest;
 use tungstenite::handshake::HandshakeError;
 use tungstenite::{Message, WebSocket};
 
@@ -74,7 +73,9 @@ impl Server {
     fn stats(&self) -> LiveStats {
         let (reply, answer) = mpsc::channel();
         self.commands.send(Command::Stats(reply)).expect("server");
-        answer.recv_timeout(PATIENCE).expect("the live sink blocked")
+        answer
+            .recv_timeout(PATIENCE)
+            .expect("the live sink blocked")
     }
 
     fn stop(self) {
@@ -118,11 +119,7 @@ fn plot(topic: &str, stamp_ns: u64, value: f64) -> Record {
 fn connect(addr: SocketAddr) -> WebSocket<TcpStream> {
     let stream = TcpStream::connect(addr).expect("connect");
     stream.set_read_timeout(Some(PATIENCE)).unwrap();
-    let mut request = format!("ws://{addr}").into_client_request().unwrap();
-    request
-        .headers_mut()
-        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-    let (socket, response) = match tungstenite::client(request, stream) {
+    let (socket, response) = match tungstenite::client(client_request(addr), stream) {
         Ok(done) => done,
         Err(HandshakeError::Failure(e)) => panic!("handshake: {e}"),
         Err(HandshakeError::Interrupted(_)) => panic!("handshake timed out"),
@@ -179,12 +176,12 @@ fn message_data(message: &Message) -> MessageData {
     let Message::Binary(bytes) = message else {
         panic!("expected a binary message, got {message:?}");
     };
-    assert!(bytes.len() >= MESSAGE_DATA_HEADER, "short frame");
-    assert_eq!(bytes[0], MESSAGE_DATA, "opcode");
+    let (subscription, log_time_ns, payload) =
+        parse_message_data(bytes).expect("a messageData frame");
     MessageData {
-        subscription: u32::from_le_bytes(bytes[1..5].try_into().unwrap()),
-        log_time_ns: u64::from_le_bytes(bytes[5..13].try_into().unwrap()),
-        payload: bytes[MESSAGE_DATA_HEADER..].to_vec(),
+        subscription,
+        log_time_ns,
+        payload: payload.to_vec(),
     }
 }
 
@@ -254,7 +251,9 @@ fn a_client_gets_server_info_the_channels_and_the_messages_it_subscribed_to() {
         let data = message_data(&message);
         let slot = match data.subscription {
             7 => {
-                decoder.decode(&data.payload).expect("decodes with the schema");
+                decoder
+                    .decode(&data.payload)
+                    .expect("decodes with the schema");
                 let decoded = fg::PoseInFrame::decode(data.payload.as_slice()).unwrap();
                 let stamp_ns = data.log_time_ns - UNIX_OFFSET_NS as u64;
                 let x = decoded.pose.unwrap().position.unwrap().x;
@@ -270,8 +269,14 @@ fn a_client_gets_server_info_the_channels_and_the_messages_it_subscribed_to() {
             }
             other => panic!("unknown subscription {other}"),
         };
-        assert!(data.log_time_ns > unix_ns(1_000), "a message from before subscribing");
-        assert!(data.log_time_ns >= last_log_time[slot], "log time went back");
+        assert!(
+            data.log_time_ns > unix_ns(1_000),
+            "a message from before subscribing"
+        );
+        assert!(
+            data.log_time_ns >= last_log_time[slot],
+            "log time went back"
+        );
         last_log_time[slot] = data.log_time_ns;
     }
 
@@ -377,7 +382,10 @@ fn a_client_that_does_not_read_loses_its_oldest_messages_and_the_sink_never_wait
             break;
         }
     }
-    assert!(received < 200, "{received} of 200 arrived: nothing was dropped");
+    assert!(
+        received < 200,
+        "{received} of 200 arrived: nothing was dropped"
+    );
     assert_eq!(
         received + server.stats().dropped_messages,
         200,
