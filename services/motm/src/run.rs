@@ -405,6 +405,11 @@ pub fn run_stack(
         .iter()
         .map(|s| parse_plan(s))
         .collect::<Result<Vec<_>, _>>()?;
+    let logger_outputs = crate::run_mcap::LoggerOutputs {
+        mcap: args.mcap.as_deref(),
+        live: args.live,
+    };
+    logger_outputs.check()?;
     let bin_dir = ensure_binaries(&stack)?;
 
     let ipc = IpcConfig {
@@ -441,15 +446,12 @@ pub fn run_stack(
         .arg(&bin_dir)
         .env(motm_bus::PREFIX_ENV, &ipc.prefix);
     crate::run_mcap::exit_with_parent(&mut command);
-    let with_logger = args.mcap.is_some() || args.live.is_some();
+    let with_logger = logger_outputs.any();
     let logger = if with_logger {
         Some(crate::run_mcap::LoggerProcess::start(
             &bin_dir,
             &ipc.prefix,
-            crate::run_mcap::LoggerOutputs {
-                mcap: args.mcap.as_deref(),
-                live: args.live,
-            },
+            logger_outputs,
             config_dir,
             &stack.robot,
             &scenario_path,

@@ -46,6 +46,27 @@ pub fn exit_with_parent(command: &mut Command) {
     }
 }
 
+impl LoggerOutputs<'_> {
+    /// Whether the logger is wanted at all.
+    pub fn any(&self) -> bool {
+        self.mcap.is_some() || self.live.is_some()
+    }
+
+    /// Bad input, found before anything starts: a file that cannot be written, an address
+    /// that cannot be listened on (in use, not local).
+    pub fn check(&self) -> Result<(), CliError> {
+        if let Some(out) = self.mcap {
+            std::fs::File::create(out)
+                .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
+        }
+        if let Some(addr) = self.live {
+            TcpListener::bind(addr)
+                .map_err(|e| CliError::BadInput(format!("--live {addr}: {e}")))?;
+        }
+        Ok(())
+    }
+}
+
 /// The running logger.
 pub struct LoggerProcess {
     child: Child,
@@ -53,7 +74,8 @@ pub struct LoggerProcess {
 
 impl LoggerProcess {
     /// Starts `logger [--out FILE] [--live ADDR]` from `bin_dir` on iceoryx2 prefix `prefix`
-    /// (building it with `$CARGO` when it is missing and `motm` runs through Cargo).
+    /// (building it with `$CARGO` when it is missing and `motm` runs through Cargo); the
+    /// outputs were checked with [`LoggerOutputs::check`].
     pub fn start(
         bin_dir: &Path,
         prefix: &str,
@@ -62,16 +84,6 @@ impl LoggerProcess {
         robot: &str,
         scenario: &Path,
     ) -> Result<Self, CliError> {
-        // A path that cannot be written or an address that cannot be listened on is bad input,
-        // found before the stack starts.
-        if let Some(out) = outputs.mcap {
-            std::fs::File::create(out)
-                .map_err(|e| CliError::BadInput(format!("--mcap {}: {e}", out.display())))?;
-        }
-        if let Some(addr) = outputs.live {
-            TcpListener::bind(addr)
-                .map_err(|e| CliError::BadInput(format!("--live {addr}: {e}")))?;
-        }
         if !binaries::missing(bin_dir, [LOGGER]).is_empty()
             && let Some(cargo) = std::env::var_os("CARGO")
             && let Err(e) =
