@@ -61,10 +61,17 @@ fn expected_topics() -> Vec<String> {
         services::SAFETY_SAFE_STOP,
         services::SIM_TRUTH,
         services::ARM_DRIVER_STATUS,
+        services::SUPERVISOR_STATUS,
     ] {
         topics.push(format!("/{service}"));
     }
-    for process in ["qp-resolver", "reacher", "watchdog", "panda-driver"] {
+    for process in [
+        "qp-resolver",
+        "reacher",
+        "watchdog",
+        "panda-driver",
+        "supervisor",
+    ] {
         topics.push(format!("/{}", services::heartbeat(process)));
     }
     topics

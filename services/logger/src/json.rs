@@ -172,6 +172,62 @@ impl ToJson for msgs::Heartbeat {
     }
 }
 
+impl ToJson for msgs::SupervisorStatus {
+    fn to_json(&self) -> Value {
+        let processes: Vec<Value> = self
+            .processes()
+            .iter()
+            .map(|p| {
+                json!({
+                    "name": p.name(),
+                    "pid": p.pid,
+                    "state": code_name::<msgs::SupervisedState>(p.state),
+                    "restarts": p.restarts,
+                    "last_exit": p.last_exit,
+                })
+            })
+            .collect();
+        json!({
+            "seq": self.header.seq,
+            "shutting_down": self.shutting_down == 1,
+            "processes": processes,
+        })
+    }
+}
+
+impl ToJson for msgs::SwapRequest {
+    fn to_json(&self) -> Value {
+        json!({
+            "seq": self.header.seq,
+            "request_id": self.request_id,
+            "process": code_name::<msgs::SwappableProcess>(self.process),
+            "variant": code_name::<msgs::ControllerVariant>(self.variant),
+            "command_timeout_ms": self.command_timeout_ms,
+        })
+    }
+}
+
+impl ToJson for msgs::SwapStatus {
+    fn to_json(&self) -> Value {
+        json!({
+            "seq": self.header.seq,
+            "request_id": self.request_id,
+            "stage": code_name::<msgs::SwapStageCode>(self.stage),
+            "failure": code_name::<msgs::SwapFailureCode>(self.failure),
+            "variant": code_name::<msgs::ControllerVariant>(self.variant),
+            "old_pid": self.old_pid,
+            "new_pid": self.new_pid,
+            "old_controller_id": self.old_controller_id,
+            "new_controller_id": self.new_controller_id,
+            "heartbeat_wait_ms": self.heartbeat_wait_ns as f64 / 1e6,
+            "command_wait_ms": self.command_wait_ns as f64 / 1e6,
+            "command_gap_ms": self.command_gap_ns as f64 / 1e6,
+            "stamp_gap_ms": self.stamp_gap_ns as f64 / 1e6,
+            "base_speed": self.base_speed,
+        })
+    }
+}
+
 impl ToJson for msgs::SimTruth {
     fn to_json(&self) -> Value {
         let count = (self.object_count as usize).min(msgs::MAX_SIM_OBJECTS);
@@ -251,5 +307,25 @@ mod tests {
         assert_eq!(stop.to_json()["reason"], "DeadlineMiss");
         stop.reason = 77;
         assert_eq!(stop.to_json()["reason"], "unknown");
+    }
+
+    #[test]
+    fn the_supervisor_table_lists_only_its_used_rows_with_named_states() {
+        let mut status = msgs::SupervisorStatus::zeroed();
+        status.process_count = 2;
+        status.processes[0].set_name("qp-resolver");
+        status.processes[0].state = msgs::SupervisedState::Running as u32;
+        status.processes[1].set_name("watchdog");
+        status.processes[1].state = msgs::SupervisedState::Restarting as u32;
+        status.processes[1].restarts = 3;
+        status.processes[2].set_name("not-in-use");
+        let value = status.to_json();
+        let rows = value["processes"].as_array().unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(rows[0]["name"], "qp-resolver");
+        assert_eq!(rows[0]["state"], "Running");
+        assert_eq!(rows[1]["state"], "Restarting");
+        assert_eq!(rows[1]["restarts"], 3);
+        assert_eq!(value["shutting_down"], false);
     }
 }

@@ -16,6 +16,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use clap::Parser;
+use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use motm_bus::{Bus, BusError, Flow, LoopConfig, ServiceLoop, Subscriber};
 use motm_logger::json::ToJson;
@@ -27,8 +28,18 @@ use serde_json::json;
 /// Process (and heartbeat) name.
 const PROCESS: &str = "logger";
 
-/// How often missing services are looked for again (and heartbeat services listed), ns.
+/// How often missing services are looked for again, ns.
 const ATTACH_PERIOD_NS: u64 = 1_000_000_000;
+
+/// How often the prefix's live nodes are listed for heartbeat services outside the
+/// supervisor's table (the supervisor's own, a process started by hand), ns. Listing opens and
+/// parses each node's files, so it is rare; the heartbeats of the processes in the table are
+/// tapped as soon as they appear there. In the logger's first [`STARTUP_NS`] the listing runs
+/// every [`ATTACH_PERIOD_NS`], while the stack comes up.
+const LIST_PERIOD_NS: u64 = 5_000_000_000;
+
+/// The logger's start-up time with the short listing period, ns.
+const STARTUP_NS: u64 = 10_000_000_000;
 
 /// How often `/logger/stats` is written, ns.
 const STATS_PERIOD_NS: u64 = 1_000_000_000;
@@ -83,6 +94,8 @@ trait Source {
     fn drain(&mut self, recorder: &mut Recorder, out: &mut Vec<Record>) -> Result<(), BusError>;
     /// Service name, samples read, samples lost (queue overflow).
     fn counts(&self) -> (&str, u64, u64);
+    /// Whether the subscriber is attached.
+    fn attached(&self) -> bool;
 }
 
 impl<M: Message> Tap<M> {
@@ -142,6 +155,10 @@ impl<M: Message> Source for Tap<M> {
     fn counts(&self) -> (&str, u64, u64) {
         (&self.service, self.received, self.lost)
     }
+
+    fn attached(&self) -> bool {
+        self.subscriber.is_some()
+    }
 }
 
 /// Logs a sample on its JSON channel only.
@@ -159,7 +176,7 @@ fn fixed_taps() -> Vec<Box<dyn Source>> {
     use msgs::{
         ActiveController, ArmVelocityCommand, BaseOdometry, BasePlan, BaseVelocityCommand,
         DriverStatus, GripperCommand, GripperState, JointState, MissionState, QpStatus, SafeStop,
-        SimTruth, TargetEstimate, TwistCommand,
+        SimTruth, SupervisorStatus, SwapRequest, SwapStatus, TargetEstimate, TwistCommand,
     };
     use services as s;
     vec![
@@ -206,25 +223,80 @@ fn fixed_taps() -> Vec<Box<dyn Source>> {
         Tap::<GripperState>::boxed(s::HW_GRIPPER_STATE, raw),
         Tap::<DriverStatus>::boxed(s::ARM_DRIVER_STATUS, raw),
         Tap::<DriverStatus>::boxed(s::BASE_DRIVER_STATUS, raw),
+        Tap::<SupervisorStatus>::boxed(s::SUPERVISOR_STATUS, |r, name, m, out| {
+            r.raw(name, m, out);
+            r.supervisor_status(m);
+        }),
+        Tap::<SwapRequest>::boxed(s::SUPERVISOR_SWAP_REQUEST, raw),
+        Tap::<SwapStatus>::boxed(s::SUPERVISOR_SWAP_STATUS, raw),
     ]
 }
 
-/// Names of the heartbeat services that exist on `bus`'s prefix.
-fn heartbeat_services(bus: &Bus) -> Vec<String> {
-    let prefix = format!("{}/", services::HEARTBEAT_PREFIX);
-    let mut found = Vec::new();
-    let Ok(config) = bus.ipc_config().iceoryx2() else {
-        return found;
-    };
-    let _ = ipc::Service::list(&config, |details| {
-        let name = details.static_details.name().to_string();
-        // `<service>/ready` names are the wake-up event services, not heartbeats.
-        if name.starts_with(&prefix) && !name.ends_with("/ready") {
-            found.push(name);
+/// Finds the heartbeat services to tap. Each process's bus node is named after the process
+/// and publishes `heartbeat(name)`; names come from the supervisor's table at once and from a
+/// listing of the prefix's live nodes (see [`LIST_PERIOD_NS`]). A name without a heartbeat
+/// service (a tool such as `motm status`) is tried again at the next listing.
+struct HeartbeatDiscovery {
+    /// The iceoryx2 config of the prefix (read once: it does not change under a running stack).
+    config: iceoryx2::config::Config,
+    /// Heartbeat services already tapped.
+    tapped: BTreeSet<String>,
+    started_ns: u64,
+    last_list_ns: Option<u64>,
+}
+
+impl HeartbeatDiscovery {
+    /// Discovery on `bus`'s prefix, starting at `now_ns`.
+    fn new(bus: &Bus, now_ns: u64) -> Result<Self, BusError> {
+        Ok(Self {
+            config: bus.ipc_config().iceoryx2()?,
+            tapped: BTreeSet::new(),
+            started_ns: now_ns,
+            last_list_ns: None,
+        })
+    }
+
+    /// Adds to `taps` a tap for every heartbeat service found since the last call.
+    fn poll(
+        &mut self,
+        now_ns: u64,
+        bus: &Bus,
+        recorder: &mut Recorder,
+        taps: &mut Vec<Box<dyn Source>>,
+    ) {
+        let mut processes = recorder.take_new_processes();
+        let period = if now_ns.saturating_sub(self.started_ns) < STARTUP_NS {
+            ATTACH_PERIOD_NS
+        } else {
+            LIST_PERIOD_NS
+        };
+        if self
+            .last_list_ns
+            .is_none_or(|t| now_ns.saturating_sub(t) >= period)
+        {
+            self.last_list_ns = Some(now_ns);
+            let _ = Node::<ipc::Service>::list(&self.config, |state| {
+                if let NodeState::Alive(view) = state
+                    && let Some(details) = view.details()
+                {
+                    processes.push(details.name().as_str().to_owned());
+                }
+                CallbackProgression::Continue
+            });
         }
-        CallbackProgression::Continue
-    });
-    found
+        for process in processes {
+            let service = services::heartbeat(&process);
+            if self.tapped.contains(&service) {
+                continue;
+            }
+            let mut tap = Tap::<msgs::Heartbeat>::boxed(&service, raw);
+            tap.attach(bus);
+            if tap.attached() {
+                self.tapped.insert(service);
+                taps.push(tap);
+            }
+        }
+    }
 }
 
 /// Loads the settings, the robot and the scene layout.
@@ -383,23 +455,20 @@ fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), 
     let mut sinks = Sinks::open(cli, config)?;
     let bus = Bus::open(PROCESS).map_err(|e| e.to_string())?;
     let mut taps = fixed_taps();
-    let mut heartbeats = BTreeSet::new();
     let mut records = Vec::new();
     let mut failure = None;
     let mut last_attach: Option<u64> = None;
+    let mut discovery =
+        HeartbeatDiscovery::new(&bus, motm_bus::monotonic_now_ns()).map_err(|e| e.to_string())?;
     let mut last_stats: Option<u64> = None;
     let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(config.poll_rate_hz))
         .map_err(|e| e.to_string())?;
     let exit = service
         .run_periodic(|cycle| {
             let now = cycle.now_ns;
+            discovery.poll(now, &bus, recorder, &mut taps);
             if last_attach.is_none_or(|t| now.saturating_sub(t) >= ATTACH_PERIOD_NS) {
                 last_attach = Some(now);
-                for name in heartbeat_services(&bus) {
-                    if heartbeats.insert(name.clone()) {
-                        taps.push(Tap::<msgs::Heartbeat>::boxed(&name, raw));
-                    }
-                }
                 for tap in &mut taps {
                     tap.attach(&bus);
                 }

@@ -4,7 +4,7 @@
 //! the camera a decimated `foxglove.RawImage`. Each record carries the stamp of the sample it
 //! comes from (the header's `CLOCK_MONOTONIC` stamp); nothing here reads a clock.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeSet, HashMap, VecDeque};
 
 use motm_core::kinematics::BasePose;
 use motm_core::robot::Robot;
@@ -196,6 +196,10 @@ pub struct Recorder {
     images_seen: u64,
     /// Stamp of the last record written per thinned topic ([`LoggerConfig::raw_rate_hz`]).
     last_raw_ns: HashMap<String, u64>,
+    /// Every process name seen in the supervisor's table.
+    supervised: BTreeSet<String>,
+    /// Names first seen since the last [`Recorder::take_new_processes`].
+    new_processes: Vec<String>,
 }
 
 /// Whether at least `1 / rate_hz` passed between `last_ns` and `now_ns`.
@@ -298,6 +302,8 @@ impl Recorder {
             last_scene_ns: None,
             images_seen: 0,
             last_raw_ns: HashMap::new(),
+            supervised: BTreeSet::new(),
+            new_processes: Vec::new(),
         }
     }
 
@@ -333,6 +339,23 @@ impl Recorder {
                 payload: Payload::Json(sample.to_json()),
             });
         }
+    }
+
+    /// The supervisor's table: process names not seen before are kept for
+    /// [`Recorder::take_new_processes`] (their heartbeats are then tapped).
+    pub fn supervisor_status(&mut self, sample: &msgs::SupervisorStatus) {
+        for process in sample.processes() {
+            let name = process.name();
+            if !name.is_empty() && !self.supervised.contains(name) {
+                self.supervised.insert(name.to_owned());
+                self.new_processes.push(name.to_owned());
+            }
+        }
+    }
+
+    /// Process names that appeared in the supervisor's table since the last call.
+    pub fn take_new_processes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.new_processes)
     }
 
     /// Base odometry: kept for the transforms.
@@ -663,6 +686,23 @@ mod tests {
         } else {
             world_from(transforms, &t.parent_frame_id) * local
         }
+    }
+
+    #[test]
+    fn processes_of_the_supervisor_table_are_reported_once_each() {
+        let mut r = recorder();
+        let mut status = msgs::SupervisorStatus::zeroed();
+        status.process_count = 2;
+        status.processes[0].set_name("reacher");
+        status.processes[1].set_name("watchdog");
+        r.supervisor_status(&status);
+        assert_eq!(r.take_new_processes(), ["reacher", "watchdog"]);
+        r.supervisor_status(&status);
+        assert!(r.take_new_processes().is_empty());
+        status.process_count = 3;
+        status.processes[2].set_name("final-phase");
+        r.supervisor_status(&status);
+        assert_eq!(r.take_new_processes(), ["final-phase"]);
     }
 
     #[test]

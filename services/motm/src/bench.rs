@@ -30,6 +30,9 @@ enum BenchCommand {
     /// End-to-end latency of the running stack: from a camera frame's exposure stamp to the
     /// joint command that used it (median, p99 and max µs over one `motm run`).
     E2e(crate::run::RunArgs),
+    /// The logger's cost to the control loop: p99 cycle times over runs without and with
+    /// `--mcap` (median and worst run per process, and the ratio).
+    Logger(crate::bench_logger::LoggerBenchArgs),
     /// Echo peer of `motm bench ipc` (started by it).
     #[command(hide = true)]
     IpcEcho(crate::bench_ipc::EchoArgs),
@@ -59,6 +62,7 @@ pub fn run(config_dir: &Path, args: &BenchArgs) -> Result<(), String> {
         BenchCommand::Qp(qp) => run_qp(config_dir, qp),
         BenchCommand::Ipc(ipc) => crate::bench_ipc::run(ipc),
         BenchCommand::E2e(run) => run_e2e(config_dir, run),
+        BenchCommand::Logger(logger) => crate::bench_logger::run(config_dir, logger),
         BenchCommand::IpcEcho(echo) => crate::bench_ipc::run_echo(echo),
     }
 }

@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_ipc;
+mod bench_logger;
 mod experiment;
 mod faults;
 mod kin;

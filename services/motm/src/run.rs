@@ -73,6 +73,15 @@ pub struct RunArgs {
     pub live: Option<std::net::SocketAddr>,
 }
 
+impl Default for RunArgs {
+    /// The arguments of a bare `motm run`.
+    fn default() -> Self {
+        use clap::{Args as _, FromArgMatches};
+        let matches = Self::augment_args(clap::Command::new("run")).get_matches_from(["run"]);
+        Self::from_arg_matches(&matches).expect("the defaults of motm run parse")
+    }
+}
+
 /// One process's figures, from its last heartbeat and the supervisor's table.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct ProcessReport {

@@ -1,0 +1,199 @@
+//! `motm bench logger`: what attaching the MCAP logger costs the control loop. It runs the
+//! stack `--pairs` times without and with `--mcap` (seeds counted up from `--seed`, the order
+//! of each pair alternating so a drift in machine load hits both sides alike) and reports, per
+//! control process, the median and the worst over the runs of each run's p99 cycle time (the
+//! process's last heartbeat: its last 2000 cycles), and the ratio with ÷ without.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use serde_json::json;
+
+use crate::run::{RunArgs, RunReport, run_stack};
+
+/// Arguments of `motm bench logger`.
+#[derive(Args, Debug)]
+pub struct LoggerBenchArgs {
+    /// Pairs of runs (one without, one with the logger).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pairs: u32,
+    /// First seed; pair i runs seed + i on both sides.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Scenario file or name (default: the stack config's `scenario`).
+    #[arg(long)]
+    scenario: Option<String>,
+    /// Folder for the logs written by the runs with the logger (default: the system's
+    /// temporary folder).
+    #[arg(long)]
+    out_dir: Option<PathBuf>,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The processes whose cycle time is the control loop's (the logger's own is not).
+const CONTROL_PROCESSES: [&str; 8] = [
+    "qp-resolver",
+    "reacher",
+    "final-phase",
+    "base-planner",
+    "perception",
+    "panda-driver",
+    "ld60-driver",
+    "watchdog",
+];
+
+/// One side's p99 cycle times, µs, per process over the runs.
+#[derive(Default)]
+struct Side {
+    p99_us: BTreeMap<&'static str, Vec<f64>>,
+    deadline_misses: BTreeMap<&'static str, u64>,
+    failures: u32,
+}
+
+impl Side {
+    /// Adds one run's figures.
+    fn add(&mut self, report: &RunReport) {
+        if !report.trial.success {
+            self.failures += 1;
+        }
+        for name in CONTROL_PROCESSES {
+            if let Some(p) = report.processes.iter().find(|p| p.name == name) {
+                self.p99_us.entry(name).or_default().push(p.p99_cycle_us);
+                *self.deadline_misses.entry(name).or_default() += p.deadline_misses;
+            }
+        }
+    }
+
+    /// Median and maximum of `name`'s per-run p99, µs.
+    fn summary(&self, name: &str) -> Option<(f64, f64)> {
+        let mut values = self.p99_us.get(name)?.clone();
+        values.sort_by(f64::total_cmp);
+        let median = if values.len() % 2 == 1 {
+            values[values.len() / 2]
+        } else {
+            0.5 * (values[values.len() / 2 - 1] + values[values.len() / 2])
+        };
+        Some((median, *values.last()?))
+    }
+}
+
+/// Runs `motm bench logger`.
+pub fn run(config_dir: &Path, args: &LoggerBenchArgs) -> Result<(), String> {
+    let out_dir = args.out_dir.clone().unwrap_or_else(std::env::temp_dir);
+    let (mut without, mut with) = (Side::default(), Side::default());
+    for pair in 0..args.pairs {
+        let seed = args.seed + u64::from(pair);
+        let log = out_dir.join(format!(
+            "motm-bench-logger-{}-{pair}.mcap",
+            std::process::id()
+        ));
+        let order = if pair % 2 == 0 {
+            [false, true]
+        } else {
+            [true, false]
+        };
+        for logged in order {
+            let run_args = RunArgs {
+                seed: Some(seed),
+                scenario: args.scenario.clone(),
+                mcap: logged.then(|| log.clone()),
+                ..RunArgs::default()
+            };
+            let (report, _) = run_stack(config_dir, &run_args, false).map_err(|e| e.to_string())?;
+            if !args.json {
+                eprintln!(
+                    "pair {pair} seed {seed} {}: qp-resolver p99 {:.0} µs ({})",
+                    if logged {
+                        "with logger   "
+                    } else {
+                        "without logger"
+                    },
+                    report
+                        .processes
+                        .iter()
+                        .find(|p| p.name == "qp-resolver")
+                        .map_or(f64::NAN, |p| p.p99_cycle_us),
+                    if report.trial.success {
+                        "success"
+                    } else {
+                        "failed"
+                    }
+                );
+            }
+            if logged {
+                with.add(&report);
+                // The logs are not the point here; keep the disk clean.
+                let _ = std::fs::remove_file(&log);
+            } else {
+                without.add(&report);
+            }
+        }
+    }
+    print_summary(&without, &with, args)
+}
+
+/// Prints the per-process table (or JSON).
+fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<(), String> {
+    let mut rows = serde_json::Map::new();
+    if !args.json {
+        println!(
+            "p99 cycle time over {} runs each side (median of the runs' p99 / worst run), µs:",
+            args.pairs
+        );
+        println!(
+            "{:<14} {:>18} {:>18} {:>8} {:>14}",
+            "process", "without logger", "with logger", "ratio", "deadline misses"
+        );
+    }
+    for name in CONTROL_PROCESSES {
+        let (Some((off_median, off_max)), Some((on_median, on_max))) =
+            (without.summary(name), with.summary(name))
+        else {
+            continue;
+        };
+        let ratio = on_median / off_median;
+        let misses = (
+            without.deadline_misses.get(name).copied().unwrap_or(0),
+            with.deadline_misses.get(name).copied().unwrap_or(0),
+        );
+        if args.json {
+            rows.insert(
+                name.to_owned(),
+                json!({
+                    "without_median_p99_us": off_median,
+                    "without_worst_p99_us": off_max,
+                    "with_median_p99_us": on_median,
+                    "with_worst_p99_us": on_max,
+                    "ratio": ratio,
+                    "deadline_misses_without": misses.0,
+                    "deadline_misses_with": misses.1,
+                }),
+            );
+        } else {
+            println!(
+                "{name:<14} {:>8.0} / {:>7.0} {:>8.0} / {:>7.0} {ratio:>8.2} {:>6} / {:<6}",
+                off_median, off_max, on_median, on_max, misses.0, misses.1
+            );
+        }
+    }
+    if args.json {
+        println!(
+            "{}",
+            json!({
+                "pairs": args.pairs,
+                "failures_without": without.failures,
+                "failures_with": with.failures,
+                "processes": rows,
+            })
+        );
+    } else {
+        println!(
+            "failed runs: {} without, {} with the logger",
+            without.failures, with.failures
+        );
+    }
+    Ok(())
+}
