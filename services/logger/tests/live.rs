@@ -432,3 +432,35 @@ fn closed_clients_are_dropped_and_clients_past_the_limit_are_refused() {
     assert_eq!(server.stats().connections, 2);
     server.stop();
 }
+
+#[test]
+fn a_client_offering_only_another_subprotocol_is_refused_and_one_offering_none_is_served() {
+    let server = Server::start(LiveConfig::default());
+    let stream = TcpStream::connect(server.addr).unwrap();
+    stream.set_read_timeout(Some(PATIENCE)).unwrap();
+    let mut request = client_request(server.addr);
+    request
+        .headers_mut()
+        .insert("Sec-WebSocket-Protocol", "some.other.v1".parse().unwrap());
+    match tungstenite::client(request, stream) {
+        Err(HandshakeError::Failure(tungstenite::Error::Http(response))) => {
+            assert_eq!(response.status(), 400);
+        }
+        Err(e) => panic!("expected a refusal, got {e}"),
+        Ok(_) => panic!("a client of another subprotocol was served"),
+    }
+    // A bare WebSocket client (no subprotocol offered) is served.
+    let stream = TcpStream::connect(server.addr).unwrap();
+    stream.set_read_timeout(Some(PATIENCE)).unwrap();
+    let mut request = client_request(server.addr);
+    request.headers_mut().remove("Sec-WebSocket-Protocol");
+    let (mut client, _) = tungstenite::client(request, stream).expect("served");
+    client
+        .get_ref()
+        .set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    assert_eq!(next_text(&mut client)["op"], "serverInfo");
+    let stats = server.stats();
+    assert_eq!((stats.refused, stats.connections), (1, 1), "{stats:?}");
+    server.stop();
+}
