@@ -414,6 +414,15 @@ impl LiveSink {
         });
     }
 
+    /// Closes every client's connection with a WebSocket close (best effort, without
+    /// blocking: what the socket does not take at once is lost), so clients see the view end
+    /// rather than a reset.
+    pub fn close(mut self) {
+        for client in &mut self.clients {
+            let _ = client.socket.close(None);
+        }
+    }
+
     /// Accepts waiting connections (at most [`ACCEPTS_PER_POLL`]), refusing those past
     /// `max_clients`.
     fn accept(&mut self, now_ns: u64) {

@@ -441,6 +441,7 @@ impl Sinks {
         }
         if let Some(live) = self.live {
             let stats = live.stats();
+            live.close();
             done += &format!(
                 "; live view: {} connections, {} messages sent, {} dropped",
                 stats.connections, stats.sent_messages, stats.dropped_messages

@@ -53,7 +53,7 @@ impl Server {
                         let _ = reply.send(sink.stats());
                     }
                     Err(mpsc::RecvTimeoutError::Timeout) => {}
-                    Err(mpsc::RecvTimeoutError::Disconnected) => return,
+                    Err(mpsc::RecvTimeoutError::Disconnected) => return sink.close(),
                 }
                 sink.poll(start.elapsed().as_nanos() as u64);
             }
@@ -321,8 +321,15 @@ fn a_client_gets_server_info_the_channels_and_the_messages_it_subscribed_to() {
     assert_eq!((stats.clients, stats.connections), (1, 1));
     assert_eq!(stats.dropped_messages, 0, "{stats:?}");
     assert!(stats.sent_messages >= 6 + 5, "{stats:?}");
-    drop(client);
+    // When the sink ends, the client gets a WebSocket close (after what was still queued).
     server.stop();
+    loop {
+        match next_message(&mut client, || {}) {
+            Message::Close(_) => break,
+            Message::Binary(_) => {}
+            other => panic!("expected the close, got {other:?}"),
+        }
+    }
 }
 
 #[test]
