@@ -785,4 +785,51 @@ mod tests {
         assert!(err.contains("reacher.pregrasp_height"), "{err}");
         ReacherConfig::default().validate(file).unwrap();
     }
+
+    /// A reach whose goal is on the other side of the base holds (pulling the tool back toward
+    /// the ready pose) until the tool is back in front; the same reach from in front starts.
+    #[test]
+    fn a_reach_to_the_other_side_of_the_base_starts_only_from_in_front() {
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        // The place lies 0.6 m to the left at range entry, which is now (t_R = 0).
+        let target = TargetEstimate::fixed(Vector3::new(0.4, 0.6, 0.4));
+        let input_with_tool = |tool_position: Vector3<f64>| ReacherInput {
+            task_index: 1,
+            base,
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool: ToolState {
+                pose: Isometry3::from_parts(tool_position.into(), top_down(0.0)),
+                twist: Twist::zeros(),
+                acceleration: Vector6::zeros(),
+            },
+            target,
+            target_yaw: None,
+            time_to_range: 0.0,
+            range_entry_pose: base,
+            dt: DT,
+        };
+        // Just after a pick on the right: the tool is 0.6 m to the right.
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.4, -0.6, 0.5)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Holding);
+        assert!(out.twist[1] > 0.1, "pulled back toward the middle: {out:?}");
+        // Back within the side-change margin: the reach starts (and stays latched).
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.55, -0.15, 0.6)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.4, -0.6, 0.5)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        // A goal on the same side as the tool starts at once.
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let same_side = ReacherInput {
+            target: TargetEstimate::fixed(Vector3::new(0.4, -0.6, 0.4)),
+            ..input_with_tool(Vector3::new(0.4, -0.5, 0.5))
+        };
+        assert_eq!(reacher.step(&same_side).unwrap().mode, ReachMode::Reaching);
+    }
 }

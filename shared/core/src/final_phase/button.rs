@@ -233,4 +233,39 @@ mod tests {
         assert!(retracted);
         assert!(world.t >= config.button.push_timeout);
     }
+
+    #[test]
+    fn the_push_goes_down_where_the_button_was_seen_from_the_hover_pose() {
+        let config = FinalPhaseConfig::default();
+        let mut controller = ButtonController::new(config.servo, config.button);
+        let tool = Isometry3::new(BUTTON + Vector3::new(-0.05, -0.04, 0.09), Vector3::x() * PI);
+        let mut world = KinematicWorld::new(tool, 0.3, TargetPath::Static(BUTTON), DT);
+        world.graspable = false;
+        // Once the push begins, the estimate drifts 2 cm sideways (as a palm camera's fixes do
+        // that close to the cap) and claims a sideways velocity.
+        let drift = Vector3::new(0.02, 0.0, 0.0);
+        let mut pushed = false;
+        for _ in 0..600 {
+            let mut input = world.input();
+            if pushed {
+                input.target.position += drift;
+                input.target.velocity = Vector3::new(0.05, 0.0, 0.0);
+            }
+            let out = controller.step(&input);
+            world.advance(&out);
+            if out.stage == FinalPhaseStage::Pushing {
+                pushed = true;
+                let off = (world.tool.translation.vector - BUTTON).xy().norm();
+                assert!(off < 0.006, "{off} m off the button during the push");
+            }
+            if out.progress == TaskProgress::Done {
+                break;
+            }
+        }
+        assert!(pushed);
+        assert_eq!(controller.stage(), FinalPhaseStage::Done);
+        // A new task forgets the latched position.
+        controller.reset();
+        assert_eq!(controller.stage(), FinalPhaseStage::Approach);
+    }
 }
