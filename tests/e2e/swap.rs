@@ -77,8 +77,8 @@ fn run_with_swap(tag: &str, extra: &[&str]) -> (Value, Value, String) {
 #[test]
 fn swap_from_grasp_to_press_button_while_driving_to_the_button() {
     // The mission's controller (grasp, then drop) picks and places the cube; at 15 s, on the
-    // way to the button, press-button replaces it for the button task. (The shipped `button`
-    // scenario cannot be used: its place misses, so the button task never starts.)
+    // way to the button, press-button replaces it for the button task, and presses the button
+    // (perception finds its cap, so the base's odometry drift does not matter).
     let (report, swap, stderr) = run_with_swap(
         "button",
         &[
@@ -99,8 +99,7 @@ fn swap_from_grasp_to_press_button_while_driving_to_the_button() {
         "{report}"
     );
     // ... and the button task's final phase began after the swap, under the new controller
-    // (the old one was stopped at the flip). Whether the cap then latches is the press-button
-    // controller's business: the run ends by its wall-clock timeout either way.
+    // (the old one was stopped at the flip) ...
     let done = stderr
         .find("swap ")
         .and_then(|i| stderr[i..].find(": done;").map(|j| i + j))
@@ -109,6 +108,10 @@ fn swap_from_grasp_to_press_button_while_driving_to_the_button() {
         stderr[done..].contains("mission task 2/3 phase Final"),
         "the button task's final phase did not start after the swap:\n{stderr}"
     );
+    // ... which pressed the button: the world counts the press, and with the cube placed the
+    // mission succeeds before the run's timeout.
+    assert_eq!(report["success"], true, "{report}\n{stderr}");
+    assert!(report["failure"].is_null(), "{report}");
 }
 
 #[test]

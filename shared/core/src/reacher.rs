@@ -70,6 +70,16 @@ pub struct ReacherConfig {
     /// Largest speed of the holding correction, m/s: after a task the tool returns to the ready
     /// pose at most this fast instead of jumping back with the full gain.
     pub hold_max_speed: f64,
+    /// Side-change margin, m. When the tool and the pre-grasp point (predicted at t_R, in the
+    /// base frame predicted at t_R) lie on opposite sides of the ready pose, each more than
+    /// this far to the side, the arm keeps holding, which pulls the tool back toward the ready
+    /// pose in front of the base, until the tool is within this of the ready pose's side
+    /// offset; only then may the reach start. A straight path from one side to the other
+    /// would run through the arm's own base column (the shoulder joint winds to its limit and
+    /// the reach is lost), as after a pick on one side of the base when the place lies on the
+    /// other. 0.2 m: well outside a reach that stays on one side (the tool then sits some
+    /// 0.5–0.6 m to the side), and the swing then passes in front of the shoulder.
+    pub side_change_margin: f64,
     /// Symmetry of the object about the vertical, rad (π/2 for a cube). When the object's yaw is
     /// known, the gripper yaw is the object's yaw plus the multiple of this closest to the
     /// gripper's current yaw.
@@ -85,6 +95,7 @@ impl Default for ReacherConfig {
             min_base_speed: 0.05,
             hold_gain: 2.0,
             hold_max_speed: 0.25,
+            side_change_margin: 0.2,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
         }
     }
@@ -103,6 +114,7 @@ impl ReacherConfig {
             ("min_base_speed", self.min_base_speed > 0.0),
             ("hold_gain", self.hold_gain >= 0.0),
             ("hold_max_speed", self.hold_max_speed > 0.0),
+            ("side_change_margin", self.side_change_margin >= 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
         ];
         for (key, ok) in checks {
@@ -111,7 +123,8 @@ impl ReacherConfig {
                     file,
                     format!("reacher.{key}"),
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
-                     min_base_speed > 0, hold_gain ≥ 0, yaw_symmetry > 0)",
+                     min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
+                     side_change_margin ≥ 0, yaw_symmetry > 0)",
                 ));
             }
         }
@@ -264,7 +277,10 @@ impl Reacher {
         let arm_speed = (config.arm_speed_ratio * base_speed).max(MIN_ARM_SPEED);
         let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm() / arm_speed;
 
-        if self.mode == ReachMode::Holding && time_to_range <= transit_time {
+        if self.mode == ReachMode::Holding
+            && time_to_range <= transit_time
+            && !self.changes_side(&tool_in_base_frame.coords, &goal_in_entry_frame.coords)
+        {
             self.mode = ReachMode::Reaching;
         }
         if self.mode == ReachMode::Holding {
@@ -330,6 +346,16 @@ impl Reacher {
             duration,
             goal: Isometry3::from_parts(goal_position.into(), goal_rotation),
         })
+    }
+
+    /// Whether the reach from `tool` (base frame) to `goal` (base frame at range entry) would
+    /// cross from one side of the ready pose to the other
+    /// ([`ReacherConfig::side_change_margin`]).
+    fn changes_side(&self, tool: &Vector3<f64>, goal: &Vector3<f64>) -> bool {
+        let centre = self.ready_tool.translation.vector.y;
+        let margin = self.config.side_change_margin;
+        let (tool_side, goal_side) = (tool.y - centre, goal.y - centre);
+        tool_side.abs() > margin && goal_side.abs() > margin && tool_side * goal_side < 0.0
     }
 
     /// Holding: the twist of the ready pose carried by the base, plus a proportional pull back to
@@ -758,5 +784,52 @@ mod tests {
         let err = config.validate(file).unwrap_err().to_string();
         assert!(err.contains("reacher.pregrasp_height"), "{err}");
         ReacherConfig::default().validate(file).unwrap();
+    }
+
+    /// A reach whose goal is on the other side of the base holds (pulling the tool back toward
+    /// the ready pose) until the tool is back in front; the same reach from in front starts.
+    #[test]
+    fn a_reach_to_the_other_side_of_the_base_starts_only_from_in_front() {
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        // The place lies 0.6 m to the left at range entry, which is now (t_R = 0).
+        let target = TargetEstimate::fixed(Vector3::new(0.4, 0.6, 0.4));
+        let input_with_tool = |tool_position: Vector3<f64>| ReacherInput {
+            task_index: 1,
+            base,
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool: ToolState {
+                pose: Isometry3::from_parts(tool_position.into(), top_down(0.0)),
+                twist: Twist::zeros(),
+                acceleration: Vector6::zeros(),
+            },
+            target,
+            target_yaw: None,
+            time_to_range: 0.0,
+            range_entry_pose: base,
+            dt: DT,
+        };
+        // Just after a pick on the right: the tool is 0.6 m to the right.
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.4, -0.6, 0.5)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Holding);
+        assert!(out.twist[1] > 0.1, "pulled back toward the middle: {out:?}");
+        // Back within the side-change margin: the reach starts (and stays latched).
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.55, -0.15, 0.6)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        let out = reacher
+            .step(&input_with_tool(Vector3::new(0.4, -0.6, 0.5)))
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        // A goal on the same side as the tool starts at once.
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let same_side = ReacherInput {
+            target: TargetEstimate::fixed(Vector3::new(0.4, -0.6, 0.4)),
+            ..input_with_tool(Vector3::new(0.4, -0.5, 0.5))
+        };
+        assert_eq!(reacher.step(&same_side).unwrap().mode, ReachMode::Reaching);
     }
 }

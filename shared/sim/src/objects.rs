@@ -46,6 +46,11 @@ pub struct ObjectConfig {
     pub button_height: f64,
     /// Side of the square pedestal under each button, m.
     pub button_pedestal_size: f64,
+    /// Thickness of the red marking on top of a button's cap, m. The rest of the cap is dark
+    /// grey, so the palm camera sees (almost) only the top face in red and perception, which
+    /// intersects the blob's ray with the plane of the cap's top, is off by at most this times
+    /// the tangent of the viewing angle (0.002: under 2 mm at 45°).
+    pub button_marking_thickness: f64,
     /// How far a knocked-off cube lands beyond the edge of its platform, m.
     pub knock_off_throw: f64,
     /// Gravity for falling cubes, m/s².
@@ -67,6 +72,7 @@ impl Default for ObjectConfig {
             button_radius: 0.03,
             button_height: 0.02,
             button_pedestal_size: 0.15,
+            button_marking_thickness: 0.002,
             knock_off_throw: 0.1,
             gravity: 9.81,
         }
@@ -159,6 +165,8 @@ pub struct Button {
     pub depth: f64,
     /// Cap radius, m.
     pub radius: f64,
+    /// Height of the cap above its pedestal (its full stroke), m.
+    pub height: f64,
 }
 
 /// The true state of one button.
@@ -245,6 +253,7 @@ impl Layout {
                 top_center: Vector3::from(b.position),
                 depth: b.depth,
                 radius: config.button_radius,
+                height: config.button_height,
             })
             .collect();
         Self {

@@ -20,6 +20,11 @@ use rand_chacha::ChaCha8Rng;
 
 /// Colour of the cube to pick: saturated red.
 pub const CUBE_RED: [u8; 3] = [210, 28, 24];
+/// Colour of the marking on top of a button's cap: red, so perception finds it as it finds a
+/// cube (the two are told apart by nearness to the task's prior).
+pub const BUTTON_RED: [u8; 3] = [200, 30, 30];
+/// Colour of the body of a button's cap below its red marking: dark grey plastic.
+pub const BUTTON_BODY: [u8; 3] = [60, 60, 64];
 /// Colour of platforms and tables: light wood.
 pub const PLATFORM_WOOD: [u8; 3] = [168, 160, 146];
 /// Colour of the container: blue plastic.

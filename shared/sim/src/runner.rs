@@ -6,17 +6,18 @@
 //! function and sends the command to the world, exactly what the deployed processes do over
 //! shared memory.
 //!
-//! Object estimates: the current pick's cube is estimated by perception from the rendered palm
-//! image; until the first fix the scenario's position stands in (what a mission would be given),
-//! and when the cube leaves the view the last estimate is held. Containers and buttons are known
-//! positions. Perception is reset when a new pick starts, with the scenario position as its hint.
+//! Object estimates: the current pick's cube and the current press's button cap are estimated by
+//! perception from the rendered palm image (see `TaskKind::is_perceived`); until the first fix
+//! the scenario's position stands in (what a mission would be given), and when the target leaves
+//! the view the last estimate is held. Containers are known positions. Perception is reset when a
+//! new task starts, with the scenario position as its hint.
 
 use std::collections::VecDeque;
 use std::time::Instant;
 
 use motm_core::camera::CameraConfig;
 use motm_core::final_phase::FinalPhaseStage;
-use motm_core::mission::{MissionTask, Phase, TaskKind};
+use motm_core::mission::{MissionTask, Phase};
 use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput, OnTheMoveOutput};
 use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
@@ -27,7 +28,10 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use crate::experiment::{Method, TrialResult, TrialTrace};
 use crate::metrics::AccelerationFilterConfig;
-use crate::render::{CONTAINER_BLUE, PLATFORM_WOOD, PalmCamera, Scene, SceneBox};
+use crate::objects::Button;
+use crate::render::{
+    BUTTON_BODY, BUTTON_RED, CONTAINER_BLUE, PLATFORM_WOOD, PalmCamera, Scene, SceneBox,
+};
 use crate::scenario::Scenario;
 use crate::sim_world::{HardwareInput, SimWorld, SimWorldConfig, TrialStatus};
 use crate::world::{HardwareCommand, Outcome, World};
@@ -95,10 +99,13 @@ enum Controller {
     Planning(Box<PlanningController>, Box<RedundancyResolver>),
 }
 
-/// The scene the camera sees: the fixed layout plus the cubes where they are now.
+/// The scene the camera sees: the fixed layout plus the cubes and button caps where they are
+/// now.
 pub(crate) struct SceneBuilder {
     fixed: Scene,
     cube_size: f64,
+    buttons: Vec<Button>,
+    marking_thickness: f64,
 }
 
 impl SceneBuilder {
@@ -128,10 +135,13 @@ impl SceneBuilder {
         Self {
             fixed,
             cube_size: layout.cube_size,
+            buttons: layout.buttons.clone(),
+            marking_thickness: world.config().objects.button_marking_thickness,
         }
     }
 
-    /// The scene with the cubes where they are now.
+    /// The scene with the cubes where they are now and each button's cap pushed down by its
+    /// travel now.
     pub(crate) fn scene(&self, world: &World) -> Scene {
         let mut scene = self.fixed.clone();
         for object in &world.truth().objects {
@@ -139,11 +149,39 @@ impl SceneBuilder {
             cube.pose.rotation = object.pose.rotation;
             scene.boxes.push(cube);
         }
+        for (button, state) in self.buttons.iter().zip(&world.truth().buttons) {
+            self.add_button_cap(&mut scene, button, state.travel);
+        }
         scene
+    }
+
+    /// A button's cap, pushed down by `travel`: a square of the cap's diameter (the renderer
+    /// draws boxes), a dark body standing on the pedestal and a thin red marking on top.
+    fn add_button_cap(&self, scene: &mut Scene, button: &Button, travel: f64) {
+        let top = button.top_center - Vector3::z() * travel;
+        let pedestal_top = button.top_center.z - button.height;
+        let marking = self.marking_thickness.min(top.z - pedestal_top);
+        let side = 2.0 * button.radius;
+        let body_height = top.z - marking - pedestal_top;
+        if body_height > 0.0 {
+            scene.boxes.push(SceneBox {
+                pose: Isometry3::translation(top.x, top.y, pedestal_top + 0.5 * body_height),
+                size: Vector3::new(side, side, body_height),
+                colour: BUTTON_BODY,
+            });
+        }
+        if marking > 0.0 {
+            scene.boxes.push(SceneBox {
+                pose: Isometry3::translation(top.x, top.y, top.z - 0.5 * marking),
+                size: Vector3::new(side, side, marking),
+                colour: BUTTON_RED,
+            });
+        }
     }
 }
 
-/// Tracks the current task's target: perception for picks, known positions otherwise.
+/// Tracks the current task's target: perception for picks and presses, known positions
+/// otherwise.
 struct TargetTracker {
     tasks: Vec<MissionTask>,
     perception: Perception,
@@ -164,7 +202,7 @@ impl TargetTracker {
         }
     }
 
-    /// Switches to task `index`, resetting perception for a new pick.
+    /// Switches to task `index`, resetting perception for a new task.
     fn select(&mut self, index: usize, camera: &PalmCamera) {
         if self.task != Some(index) {
             self.task = Some(index);
@@ -180,19 +218,19 @@ impl TargetTracker {
         }
     }
 
-    /// Whether [`TargetTracker::observe`] reads camera frames now (during picks only).
+    /// Whether [`TargetTracker::observe`] reads camera frames now (perceived tasks only).
     fn wants_frames(&self) -> bool {
         self.task
             .and_then(|i| self.tasks.get(i))
-            .is_some_and(|task| task.kind == TaskKind::Pick)
+            .is_some_and(|task| task.kind.is_perceived())
     }
 
-    /// Feeds one camera frame to perception (picks only).
+    /// Feeds one camera frame to perception (perceived tasks only).
     fn observe(&mut self, image: &[u8], width: u32, height: u32, stamp: f64) {
         let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
             return;
         };
-        if task.kind != TaskKind::Pick {
+        if !task.kind.is_perceived() {
             return;
         }
         let Some(&(_, tool_pose)) = self
@@ -219,7 +257,7 @@ impl TargetTracker {
             return TargetEstimate::fixed(Vector3::zeros());
         };
         let estimate = self.perception.estimate();
-        if task.kind == TaskKind::Pick && estimate.valid {
+        if task.kind.is_perceived() && estimate.valid {
             estimate.target()
         } else {
             TargetEstimate::fixed(task.position)

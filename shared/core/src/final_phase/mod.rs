@@ -558,7 +558,11 @@ impl DropConfig {
 pub struct ButtonConfig {
     /// Height of the hover pose above the button's top surface, m (0.05).
     pub hover_height: f64,
-    /// How far to push below the button's top surface, m (0.01).
+    /// How far to push below the button's top surface, m (0.015). A button switches at a
+    /// given travel (10 mm for the buttons of the scenarios, within a 20 mm stroke) and the
+    /// push ends `depth_tolerance` short of this depth, so it must exceed the switching travel
+    /// by more than that tolerance: 15 mm − 2 mm leaves 3 mm of margin and stays 5 mm inside
+    /// the stroke.
     pub press_depth: f64,
     /// The hover pose is reached (before pushing, and after retracting) within this, m (0.005).
     pub hover_tolerance: f64,
@@ -575,7 +579,7 @@ impl Default for ButtonConfig {
     fn default() -> Self {
         Self {
             hover_height: 0.05,
-            press_depth: 0.01,
+            press_depth: 0.015,
             hover_tolerance: 0.005,
             depth_tolerance: 0.002,
             push_speed: 0.05,

@@ -8,12 +8,14 @@
 //! as a [`MissionView`].
 //!
 //! Choices (shared by every service):
-//! - **Target of the current task**: for a pick, perception's estimate once one has been
-//!   published for that task; otherwise the mission's position of the target (the runner's
-//!   rule). An estimate belongs to the current task when perception stamped it no earlier than
-//!   the moment this process first saw the task ([`TargetSelector`]): perception resets on a new
-//!   task and publishes only during picks, and picks are never back to back (a place lies
-//!   between), so an estimate of the previous pick is always older than that moment.
+//! - **Target of the current task**: for a pick or a press ([`TaskKind::is_perceived`]),
+//!   perception's estimate once one has been published for that task; otherwise the mission's
+//!   position of the target (the runner's rule). An estimate belongs to the current task when
+//!   perception stamped it no earlier than the moment this process first saw the task
+//!   ([`TargetSelector`]): perception resets on a new task and publishes only during picks and
+//!   presses, and picks are never back to back (a place lies between), so an estimate of the
+//!   previous pick is always older than that moment. Presses come after every place; two
+//!   presses in a row rely on the same stamp rule alone.
 //! - **Reach aim** and **resting gripper** are the functions [`crate::on_the_move`] uses
 //!   ([`reach_aim`], [`resting_gripper`]), so both forms agree.
 //! - **Twist rate limit** ([`crate::on_the_move::TwistRateLimit`]) is applied by the QP
@@ -202,7 +204,8 @@ impl TargetSelector {
         };
         match perceived {
             Some(p)
-                if mission.current_kind() == Some(TaskKind::Pick) && p.stamp_ns >= seen_since =>
+                if mission.current_kind().is_some_and(TaskKind::is_perceived)
+                    && p.stamp_ns >= seen_since =>
             {
                 SelectedTarget {
                     target: p.estimate,

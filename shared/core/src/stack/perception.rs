@@ -1,4 +1,5 @@
-//! The perception process: cube estimates from palm-camera images for the current pick, each
+//! The perception process: estimates of the current pick's cube or press's button cap from
+//! palm-camera images (see [`TaskKind::is_perceived`]), each
 //! image paired with the tool pose the robot believed it had when the image was taken.
 //!
 //! Choices: the tool-pose history keeps the last `history` poses (config, default 200: one
@@ -91,15 +92,16 @@ impl PerceptionCycle {
         }
     }
 
-    /// Processes `frame` for the current task: `Some` estimate to publish while a pick's cube
-    /// has been seen at least once (held when it leaves the view), `None` otherwise.
+    /// Processes `frame` for the current task: `Some` estimate to publish while a pick's cube or
+    /// a press's button cap has been seen at least once (held when it leaves the view), `None`
+    /// otherwise.
     pub fn observe(
         &mut self,
         mission: &MissionView,
         frame: &CameraFrame<'_>,
     ) -> Option<PerceptionReport> {
         self.select(mission);
-        if mission.current_kind() != Some(TaskKind::Pick) {
+        if !mission.current_kind().is_some_and(TaskKind::is_perceived) {
             return None;
         }
         let &(_, tool_pose) = self

@@ -103,7 +103,7 @@ fn latch_keeps_the_last_task_after_completion_and_fills_in_run_out_points() {
 }
 
 #[test]
-fn selector_uses_perception_only_for_the_current_pick() {
+fn selector_uses_perception_only_for_the_current_pick_or_press() {
     let mut selector = TargetSelector::default();
     let seen = PerceivedTarget {
         estimate: TargetEstimate {
@@ -128,6 +128,23 @@ fn selector_uses_perception_only_for_the_current_pick() {
     let chosen = selector.select_with_source(&place, 1_020 * MS, Some(&seen));
     assert_eq!(chosen.target, TargetEstimate::fixed(place.target));
     assert_eq!(chosen.image_stamp_ns, None);
+    // A press: perception's estimate of the button cap once it is fresh (the mission's button
+    // position is in the world frame, the tools' poses in the drifting odometry frame).
+    let mut press = view(3, TaskKind::PressButton, Phase::Reach);
+    press.task_count = 4;
+    press.target = Vector3::new(6.0, 0.0, 0.5);
+    assert_eq!(
+        selector.select(&press, 1_030 * MS, Some(&seen)),
+        TargetEstimate::fixed(press.target)
+    );
+    let cap = PerceivedTarget {
+        stamp_ns: 1_040 * MS,
+        ..seen
+    };
+    assert_eq!(
+        selector.select(&press, 1_050 * MS, Some(&cap)),
+        cap.estimate
+    );
     // A later pick ignores the previous pick's estimate until perception publishes anew.
     let mut next_pick = view(2, TaskKind::Pick, Phase::Reach);
     next_pick.task_count = 4;
@@ -579,9 +596,21 @@ fn perception_pairs_each_image_with_the_nearest_tool_pose_and_restarts_per_pick(
         .expect("held fix");
     assert!(!held.estimate.visible);
     assert_eq!(held.image_stamp_ns, 1_900 * MS);
-    // A place publishes nothing; the next pick starts from scratch.
+    // A place publishes nothing; a press publishes its button cap's fix; the next pick starts
+    // from scratch.
     let place = view(1, TaskKind::Place, Phase::Reach);
     assert!(cycle.observe(&place, &frame(&red, 1_960 * MS)).is_none());
+    let mut press = view(1, TaskKind::PressButton, Phase::Reach);
+    press.task_index = 3;
+    press.task_count = 5;
+    press.target = Vector3::zeros();
+    let cap = cycle
+        .observe(&press, &frame(&red, 1_960 * MS))
+        .expect("a fix of the cap");
+    assert!(
+        cap.estimate.visible && cap.estimate.position.x.abs() < 0.01,
+        "{cap:?}"
+    );
     let mut next_pick = pick;
     next_pick.task_index = 2;
     next_pick.task_count = 4;
