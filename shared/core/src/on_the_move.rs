@@ -309,6 +309,7 @@ impl OnTheMove {
             base: input.base,
             target: input.target,
             next_target: next,
+            dt: input.dt,
         }) else {
             self.rejected_inputs += 1;
             return self.hold(task_index, phase);

@@ -417,6 +417,7 @@ mod tests {
             arm_base: Vector2::new(0.15, 0.0),
             max_speed: 1.2,
             max_yaw_rate: 1.5,
+            max_yaw_acceleration: 2.0,
         }
     }
 
@@ -455,6 +456,7 @@ mod tests {
                     base,
                     target,
                     next_target: Vector3::new(6.0, 0.0, 0.35),
+                    dt: DT,
                 })
                 .unwrap();
             let output = reacher
