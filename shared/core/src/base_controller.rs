@@ -24,7 +24,7 @@
 //!   in, sending the base across the target's front; the rotation test keeps the side on which
 //!   the base can turn round with the target outside its turn.
 //! - **Passed latch**: set when the base is within r_C of the target, or the target is abeam or
-//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, t_R
+//!   behind within r_C + `pass_margin`, or the base is within `min_goal_distance` of ξ_C; cleared when the task index changes. Once passed, t_R
 //!   is 0 and the goal is on the next target's r_C circle (below).
 //! - **β sign**: Corke's `β = θ_goal − ψ`, the convention under which k_α > 1, k_β < 0 is stable.
 //! - **t_R path model**: straight to ξ_C, then straight on along ξ_C's heading, at v_F, with the
@@ -446,11 +446,20 @@ impl BaseController {
         }
         let speed = self.speed();
 
-        let tangent = if self.passed {
+        let mut tangent = if self.passed {
             None
         } else {
             tangent_point(base_xy, target, r_c, self.side)
         };
+        // At ξ_C (within the ρ clamp of it) the base is at its closest approach; the polar law
+        // is ill-conditioned there (α and β swing as ρ → 0), so the target counts as passed.
+        // This matters for a target moving along with the base, whose tangent point stays
+        // just ahead.
+        if tangent.is_some_and(|(point, _)| (point - base_xy).norm() <= self.config.min_goal_distance)
+        {
+            self.passed = true;
+            tangent = None;
+        }
         let goal = match tangent {
             Some((point, tangent_heading)) => {
                 let yaw = match self.config.approach_heading {
