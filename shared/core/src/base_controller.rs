@@ -15,16 +15,16 @@
 //! Choices (each a [`BaseControllerConfig`] value where it is a number):
 //! - **Heading of ξ_C**: toward the next target, as ALGORITHMS.md says; the tangent direction is
 //!   the alternative ([`ApproachHeading`]).
-//! - **Side**: the side whose way past the target toward the next one turns the base least
-//!   ([`pass_rotation`]: onto the tangent line, then away from the target toward the next one),
-//!   with hysteresis ([`BaseControllerConfig::side_hysteresis`]). For a bend of less than 90° this
-//!   is the side of the line base→target on which the next target lies (the paper's "bends toward
-//!   N"). For a U-turn (the next target behind, as in experiment 2's loop) that sign test is
-//!   ill-posed: the base approaches offset by r_C from the line, and the sign flips as it closes
-//!   in, sending the base across the target's front; the rotation test keeps the side on which
-//!   the base can turn round with the target outside its turn.
+//! - **Side**: for a bend under 90° (direction base→target to direction target→next), the side of
+//!   the line base→target on which the next target lies (the paper's "bends toward N"). For a
+//!   larger bend (toward a U-turn, the next target behind, as in experiment 2's loop) that sign
+//!   test is ill-posed: the base approaches offset by r_C from the line, and the sign flips as it
+//!   closes in, sending the base across the target's front. There the side is the one whose way
+//!   past the target turns the base less ([`pass_rotation`]: onto the tangent line, then away
+//!   from the target toward the next one). Both with hysteresis
+//!   ([`BaseControllerConfig::side_hysteresis`]), and fixed within `side_commit_distance`.
 //! - **Passed latch**: set when the base is within r_C of the target, or the target is abeam or
-//!   behind within r_C + `pass_margin`, or the base is within `min_goal_distance` of ξ_C; cleared when the task index changes. Once passed, t_R
+//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, t_R
 //!   is 0 and the goal is on the next target's r_C circle (below).
 //! - **β sign**: Corke's `β = θ_goal − ψ`, the convention under which k_α > 1, k_β < 0 is stable.
 //! - **t_R path model**: straight to ξ_C, then straight on along ξ_C's heading, at v_F, with the
@@ -115,10 +115,12 @@ pub struct BaseControllerConfig {
     pub min_goal_distance: f64,
     /// Heading of ξ_C.
     pub approach_heading: ApproachHeading,
-    /// Side-choice hysteresis, rad. The side switches only when the other side's way past the
-    /// target turns the base less by more than this ([`pass_rotation`]); on the first step of a
-    /// task the smaller turn wins outright. 0.2 rad ≈ 11°: perception noise on a nearly straight
-    /// course does not flip the side.
+    /// Side-choice hysteresis. For a bend under 90° the bend is `b = sin δ`, δ being the turn
+    /// from the direction base→target to the direction target→next; the side switches to the
+    /// left only when `b > side_hysteresis` and to the right only when `b < −side_hysteresis`.
+    /// For a larger bend the side switches only when the other side's way past the target turns
+    /// the base less by more than this many radians ([`pass_rotation`]). In between the previous
+    /// side is kept; on a task's first step the raw comparison decides. 0.1 ≈ a 6° turn.
     pub side_hysteresis: f64,
     /// Within this distance of the target the side no longer changes (except on a task's first
     /// step), m. Changing sides means crossing the target's front, 2·r_C sideways; close in the
@@ -146,9 +148,9 @@ impl Default for BaseControllerConfig {
             closest_approach_radius: 0.6,
             k_alpha: 4.0,
             k_beta: -1.5,
-            min_goal_distance: 0.2,
+            min_goal_distance: std::env::var("MGD").ok().and_then(|v| v.parse().ok()).unwrap_or(0.2),
             approach_heading: ApproachHeading::default(),
-            side_hysteresis: 0.2,
+            side_hysteresis: 0.1,
             side_commit_distance: 1.5,
             pass_margin: 0.3,
             max_approach_turn: std::env::var("MAT").ok().and_then(|v| v.parse().ok()).unwrap_or(std::f64::consts::FRAC_PI_4),
@@ -446,20 +448,11 @@ impl BaseController {
         }
         let speed = self.speed();
 
-        let mut tangent = if self.passed {
+        let tangent = if self.passed {
             None
         } else {
             tangent_point(base_xy, target, r_c, self.side)
         };
-        // At ξ_C (within the ρ clamp of it) the base is at its closest approach; the polar law
-        // is ill-conditioned there (α and β swing as ρ → 0), so the target counts as passed.
-        // This matters for a target moving along with the base, whose tangent point stays
-        // just ahead.
-        if tangent.is_some_and(|(point, _)| (point - base_xy).norm() <= self.config.min_goal_distance)
-        {
-            self.passed = true;
-            tangent = None;
-        }
         let goal = match tangent {
             Some((point, tangent_heading)) => {
                 let yaw = match self.config.approach_heading {
@@ -542,27 +535,40 @@ impl BaseController {
     }
 
     fn update_side(&mut self, input: &BaseControllerInput, fresh: bool) {
-        let distance = (xy(&input.target.position) - Vector2::new(input.base.x, input.base.y)).norm();
+        let base_xy = Vector2::new(input.base.x, input.base.y);
+        let target = xy(&input.target.position);
+        let next = xy(&input.next_target);
+        let distance = (target - base_xy).norm();
         if self.passed || (!fresh && distance < self.config.side_commit_distance) {
             return;
         }
-        let rotation = |side| {
-            pass_rotation(
-                &input.base,
-                xy(&input.target.position),
-                xy(&input.next_target),
-                self.config.closest_approach_radius,
-                side,
-            )
-        };
-        let (Some(left), Some(right)) = (rotation(PassSide::Left), rotation(PassSide::Right))
-        else {
+        let (Some(a), Some(c)) = (
+            (target - base_xy).try_normalize(1e-9),
+            (next - target).try_normalize(1e-9),
+        ) else {
             return;
         };
         let band = if fresh {
             0.0
         } else {
             self.config.side_hysteresis
+        };
+        if a.dot(&c) >= 0.0 {
+            // A bend under 90°: the side of the line base→target on which the next target lies.
+            let bend = a.perp(&c);
+            if bend > band {
+                self.side = PassSide::Left;
+            } else if bend < -band {
+                self.side = PassSide::Right;
+            }
+            return;
+        }
+        // A bend over 90° (toward a U-turn): the side that turns the base less.
+        let r_c = self.config.closest_approach_radius;
+        let rotation = |side| pass_rotation(&input.base, target, next, r_c, side);
+        let (Some(left), Some(right)) = (rotation(PassSide::Left), rotation(PassSide::Right))
+        else {
+            return;
         };
         if left.abs() + band < right.abs() {
             self.side = PassSide::Left;
@@ -1024,6 +1030,93 @@ mod tests {
             ];
             assert!(values.iter().all(|v| v.is_finite()), "{out:?}");
         }
+    }
+
+    #[test]
+    fn the_turn_command_is_rate_limited_across_a_goal_switch() {
+        let model = frankie_like();
+        let mut controller = BaseController::new(BaseControllerConfig::default(), model);
+        let max_change = model.max_yaw_acceleration * DT;
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        // Task 0: a target ahead and to the right, next target far to the left.
+        let mut input = BaseControllerInput {
+            task_index: 0,
+            base,
+            target: TargetEstimate::fixed(Vector3::new(3.0, -0.5, 0.45)),
+            next_target: Vector3::new(4.0, 3.0, 0.35),
+            dt: DT,
+        };
+        let mut last = 0.0;
+        let mut largest_step: f64 = 0.0;
+        for k in 0..600 {
+            if k == 300 {
+                // The task ends: the goal jumps to a target behind and to the left, where the
+                // polar law asks for a hard turn the other way.
+                input.task_index = 1;
+                input.target = TargetEstimate::fixed(Vector3::new(-2.0, 2.0, 0.35));
+                input.next_target = Vector3::new(-4.0, 0.0, 0.45);
+            }
+            input.base = base;
+            let out = controller.step(&input).unwrap();
+            largest_step = largest_step.max((out.command.omega - last).abs());
+            last = out.command.omega;
+            integrate(&mut base, out.command, DT);
+        }
+        assert!(
+            largest_step <= max_change + 1e-12,
+            "ω changed by {largest_step} in one step, limit {max_change}"
+        );
+        // The limit spreads the turn, it does not stop it: the base ends up heading back.
+        assert!(base.x < 2.0, "the base never turned round: {base:?}");
+    }
+
+    #[test]
+    fn a_u_turn_keeps_its_side_and_turns_away_from_the_target() {
+        // Experiment 2's container: approached from the west with the next target (the next
+        // cube) back west, slightly north. The base must pass on one side and turn round the
+        // far side, never crossing the target's front.
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let target = Vector3::new(3.0, 0.0, 0.35);
+        let next = Vector3::new(0.0, 0.42, 0.45);
+        let mut base = BasePose::new(0.6, -0.3, 0.0);
+        let mut sides = Vec::new();
+        let mut min_distance = f64::INFINITY;
+        let mut turned_back = false;
+        for _ in 0..1500 {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target: TargetEstimate::fixed(target),
+                    next_target: next,
+                    dt: DT,
+                })
+                .unwrap();
+            if !out.passed {
+                sides.push(out.side);
+            }
+            min_distance = min_distance.min((Vector2::new(3.0, 0.0) - Vector2::new(base.x, base.y)).norm());
+            turned_back |= base.yaw.cos() < -0.9;
+            integrate(&mut base, out.command, DT);
+        }
+        assert!(sides.windows(2).all(|w| w[0] == w[1]), "the side flipped: {sides:?}");
+        assert!(min_distance > 0.55, "came within {min_distance:.3} m of the target");
+        assert!(turned_back, "never turned back toward the next target");
+    }
+
+    #[test]
+    fn pass_rotation_prefers_the_side_the_next_target_bends_to() {
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        let target = Vector2::new(3.0, 0.0);
+        let rotation = |next: Vector2<f64>, side| pass_rotation(&base, target, next, 0.6, side).unwrap();
+        // A 90° bend to the left: left is the short way round.
+        let next = Vector2::new(3.0, 3.0);
+        assert!(rotation(next, PassSide::Left).abs() < rotation(next, PassSide::Right).abs());
+        // A clear bend to the right.
+        let next = Vector2::new(5.0, -3.0);
+        assert!(rotation(next, PassSide::Right).abs() < rotation(next, PassSide::Left).abs());
+        // Passing on the left and then turning right by more than 90° goes the long way round.
+        assert!(rotation(Vector2::new(2.0, -3.0), PassSide::Left) > std::f64::consts::PI);
     }
 
     #[test]
