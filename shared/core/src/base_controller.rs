@@ -347,6 +347,25 @@ pub fn tangent_point(
     ))
 }
 
+/// `goal` moved along its own heading until it is at least `distance` from `base`.
+///
+/// Near ξ_C the polar law is ill-conditioned: α and β swing as ρ → 0 (the clamp on ρ only
+/// bounds the gain). A target moving along with the base keeps its tangent point just ahead of
+/// the base, so the base would weave hard there; aiming at a point on the goal's line at least
+/// `distance` ahead keeps the command smooth and still brings the base onto that line.
+pub fn look_ahead(base: &BasePose, goal: BasePose, distance: f64) -> BasePose {
+    let heading = Vector2::new(goal.yaw.cos(), goal.yaw.sin());
+    let offset = Vector2::new(goal.x - base.x, goal.y - base.y);
+    // Smallest s ≥ 0 with |offset + s·heading| ≥ distance.
+    let along = offset.dot(&heading);
+    let c = offset.norm_squared() - distance * distance;
+    if c >= 0.0 {
+        return goal;
+    }
+    let s = -along + (along * along - c).sqrt();
+    BasePose::new(goal.x + s * heading.x, goal.y + s * heading.y, goal.yaw)
+}
+
 /// A turn `angle` in (−π, π] taken the way round that `side` turns at its target: left (in
 /// (−π/2, 3π/2)) for [`PassSide::Left`], right (in (−3π/2, π/2)) for [`PassSide::Right`]. A small
 /// turn the other way (under π/2) is kept as it is.
@@ -470,6 +489,11 @@ impl BaseController {
                 self.closest_approach
             }
             None => self.after_pass_goal(b, next),
+        };
+        let goal = if self.passed {
+            goal
+        } else {
+            look_ahead(b, goal, self.config.min_goal_distance)
         };
         let polar = polar_control(b, &goal, speed, &self.config);
         let polar_omega = if self.passed {
