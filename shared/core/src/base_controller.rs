@@ -136,7 +136,7 @@ pub struct BaseControllerConfig {
     /// abeam or behind the base (no component ahead) while within r_C plus this margin, m.
     pub pass_margin: f64,
     /// Largest turn from the tangent direction at ξ_C to ξ_C's heading (toward the next target),
-    /// rad. π/4: the exp1 layouts bend far less and are unaffected; larger bends (exp2's loop)
+    /// rad. π/12 (15°): the exp1 layouts bend about 6° at the cube and are unaffected; larger bends (exp2's loop)
     /// are made after the target is passed, not while the arm reaches for it.
     pub max_approach_turn: f64,
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
@@ -156,7 +156,7 @@ impl Default for BaseControllerConfig {
             side_hysteresis: 0.1,
             side_commit_distance: 1.5,
             pass_margin: 0.3,
-            max_approach_turn: std::f64::consts::FRAC_PI_4,
+            max_approach_turn: std::f64::consts::PI / 12.0,
             yaw_acceleration_fraction: 1.0,
         }
     }
