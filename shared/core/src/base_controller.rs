@@ -136,8 +136,8 @@ pub struct BaseControllerConfig {
     /// abeam or behind the base (no component ahead) while within r_C plus this margin, m.
     pub pass_margin: f64,
     /// Largest turn from the tangent direction at ξ_C to ξ_C's heading (toward the next target),
-    /// rad. π/12 (15°): the exp1 layouts bend about 6° at the cube and are unaffected; larger bends (exp2's loop)
-    /// are made after the target is passed, not while the arm reaches for it.
+    /// rad. π/12 (15°): the exp1 layouts bend about 6° at the cube and are unaffected; larger
+    /// bends (exp2's loop) are made after the target is passed, not while the arm reaches.
     pub max_approach_turn: f64,
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
     /// commanded ω may change by per second. 1.0: the base's full capability.
