@@ -56,6 +56,7 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
             mission,
             base: measured.base,
             target,
+            dt: 1.0 / setup.rate_hz,
         }) {
             // A failed publish shows as a stale target, which the QP resolver replaces by zero.
             let _ = target_out.publish(convert::base_command(&out.plan.command));

@@ -12,12 +12,13 @@
 //! Choices:
 //! - The limits are the base joints' URDF acceleration limits times
 //!   [`BaseCommandRateConfig::limit_fraction`] (1.0: the base's full capability).
-//! - **Off by default.** In `motm experiment exp1` (seeds 1–20) it brings MotM's max |a| from
-//!   8–10 m/s² down to about 2.3 m/s² at 0.4 m/s with every trial still succeeding, but on seeds
-//!   21–40 three of 120 MotM trials (dynamic cube, 0.2 and 0.4 m/s) end in a base collision that
-//!   does not happen without it: the base controller's polar law plans with instant turns, and a
-//!   base turning more slowly than it expects can clip the container. Enable it with
-//!   `[base_rate] enabled = true` once the base controller plans with the same limit.
+//! - **On by default.** The base controller itself limits its turn command to the same yaw
+//!   acceleration (see [`crate::base_controller`]), so it plans with the turn the base will
+//!   actually make and this limit changes little on the way; it still ramps the forward speed
+//!   from rest and guards the QP against any other source of the target. In `motm experiment
+//!   exp1` it brought MotM's max |a| from 3–10 m/s² to about 2.3 m/s². (While the base
+//!   controller planned with instant turns, this limit alone cost 3 of 120 trials on seeds
+//!   21–40: a base turning more slowly than the controller expected clipped the container.)
 
 use serde::Deserialize;
 
@@ -28,7 +29,7 @@ use crate::types::BaseVelocity;
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BaseCommandRateConfig {
-    /// Whether the target's rate of change is limited at all (false; see the module docs).
+    /// Whether the target's rate of change is limited at all (true; see the module docs).
     pub enabled: bool,
     /// Fraction of the base joints' acceleration limits allowed for the target's change (1.0).
     pub limit_fraction: f64,
@@ -37,7 +38,7 @@ pub struct BaseCommandRateConfig {
 impl Default for BaseCommandRateConfig {
     fn default() -> Self {
         Self {
-            enabled: false,
+            enabled: true,
             limit_fraction: 1.0,
         }
     }
@@ -151,7 +152,11 @@ mod tests {
     #[test]
     fn disabled_passes_through_and_bad_input_holds() {
         let robot = frankie();
-        let mut off = BaseCommandRate::new(&robot, BaseCommandRateConfig::default());
+        let disabled = BaseCommandRateConfig {
+            enabled: false,
+            ..BaseCommandRateConfig::default()
+        };
+        let mut off = BaseCommandRate::new(&robot, disabled);
         let wanted = BaseVelocity { v: 0.4, omega: 1.0 };
         assert_eq!(off.apply(wanted, 0.005), wanted);
 

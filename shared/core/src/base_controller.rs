@@ -9,22 +9,48 @@
 //!    arm base, and the base pose at that moment.
 //!
 //! Everything is recomputed from the latest estimates every step, so a moving target is followed.
-//! Once the base has gone by the target (the "passed" latch) it steers straight for the next
-//! target instead.
+//! Once the base has gone by the target (the "passed" latch) it steers for the next target's
+//! closest-approach circle instead.
 //!
 //! Choices (each a [`BaseControllerConfig`] value where it is a number):
 //! - **Heading of ξ_C**: toward the next target, as ALGORITHMS.md says; the tangent direction is
 //!   the alternative ([`ApproachHeading`]).
-//! - **Side**: the tangent point on the side of the line base→target where the next target lies,
-//!   with hysteresis ([`BaseControllerConfig::side_hysteresis`]).
+//! - **Side**: for a bend under 90° (direction base→target to direction target→next), the side of
+//!   the line base→target on which the next target lies (the paper's "bends toward N"). For a
+//!   larger bend (toward a U-turn, the next target behind, as in experiment 2's loop) that sign
+//!   test is ill-posed: the base approaches offset by r_C from the line, and the sign flips as it
+//!   closes in, sending the base across the target's front. There the side is the one whose way
+//!   past the target turns the base less ([`pass_rotation`]: onto the tangent line, then away
+//!   from the target toward the next one). Both with hysteresis
+//!   ([`BaseControllerConfig::side_hysteresis`]), and fixed within `side_commit_distance`.
 //! - **Passed latch**: set when the base is within r_C of the target, or the target is abeam or
-//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, the
-//!   goal is the next target with the heading pointing at it (β = 0), and t_R is 0.
+//!   behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, t_R
+//!   is 0 and the goal is on the next target's r_C circle (below).
 //! - **β sign**: Corke's `β = θ_goal − ψ`, the convention under which k_α > 1, k_β < 0 is stable.
 //! - **t_R path model**: straight to ξ_C, then straight on along ξ_C's heading, at v_F, with the
 //!   target moving at its estimated velocity; "in range" is the horizontal distance from the arm
 //!   base (first arm joint) to the target within the robot's `manipulation_range`.
 //! - **Limits**: v = min(v_F, v_max) and ω saturated at ±ω_max, from the two virtual base joints.
+//! - **Turn acceleration**: the commanded ω changes by at most `yaw_acceleration_fraction` × the
+//!   base's yaw acceleration limit per second (ramping from rest at the first step). The polar
+//!   law steps ω when the goal jumps (a task ends and the goal switches to the next target, or
+//!   the passed latch sets); the base cannot follow such a step, and the redundancy-resolution
+//!   QP, which is handed this command as the base target, would plan the arm around a turn that
+//!   does not happen (the tool then jerks). Limiting it here, where the path is decided, keeps the
+//!   command one the base can execute, so the QP's base target and the base agree.
+//! - **Turn at ξ_C**: ξ_C's heading is turned from the tangent direction toward the next target
+//!   by at most `max_approach_turn`. With a large bend at the target (the next target is beside
+//!   or behind, as in the paper's experiment 2 loop) a heading toward the next target would make
+//!   the polar law cut the corner: it turns toward the next target before the target is abeam,
+//!   so the base swings away from the cube while the arm is reaching for it. With the limit the
+//!   base goes by the target nearly straight and makes the rest of the turn after passing it.
+//! - **Look-ahead near ξ_C**: within `min_goal_distance` of ξ_C the base aims at the point that
+//!   far ahead on ξ_C's line instead ([`look_ahead`]), so a target moving along with the base
+//!   (whose tangent point stays just ahead) does not make the polar law weave.
+//! - **After passing**: the goal is the tangent point on the next target's r_C circle on the side
+//!   that needs the smaller turn from the current heading (β = 0), not the next target itself, so
+//!   a task that takes longer than expected (a slow lift, a late release) never drives the base
+//!   at the next platform or container. Inside that circle the base drives straight on.
 
 use std::path::Path;
 
@@ -88,20 +114,34 @@ pub struct BaseControllerConfig {
     pub k_alpha: f64,
     /// Polar-controller gain on β (stable for k_β < 0).
     pub k_beta: f64,
-    /// Lower clamp on ρ, the distance to the goal pose, in `ω = (k_α·α + k_β·β)·v_F/ρ`, m.
+    /// Lower clamp on ρ, the distance to the goal pose, in `ω = (k_α·α + k_β·β)·v_F/ρ`, m; also
+    /// the look-ahead: closer to ξ_C than this, the base aims at the point this far ahead on
+    /// ξ_C's line ([`look_ahead`]).
     pub min_goal_distance: f64,
     /// Heading of ξ_C.
     pub approach_heading: ApproachHeading,
-    /// Side-choice hysteresis. The bend at the target is `b = sin δ`, δ being the turn from the
-    /// direction base→target to the direction target→next. The side switches to the left only
-    /// when `b > side_hysteresis` and to the right only when `b < −side_hysteresis`; in between
-    /// the previous side is kept (Left initially). 0.1 ≈ a 6° turn. Passing on a side also turns
-    /// δ further toward that side, so once committed the choice reinforces itself; the band
-    /// only stops noise on a nearly straight or U-turn (δ ≈ 0 or ±π) course from flipping it.
+    /// Side-choice hysteresis. For a bend under 90° the bend is `b = sin δ`, δ being the turn
+    /// from the direction base→target to the direction target→next; the side switches to the
+    /// left only when `b > side_hysteresis` and to the right only when `b < −side_hysteresis`.
+    /// For a larger bend the side switches only when the other side's way past the target turns
+    /// the base less by more than this many radians ([`pass_rotation`]). In between the previous
+    /// side is kept; on a task's first step the raw comparison decides. 0.1 ≈ a 6° turn.
     pub side_hysteresis: f64,
+    /// Within this distance of the target the side no longer changes (except on a task's first
+    /// step), m. Changing sides means crossing the target's front, 2·r_C sideways; close in the
+    /// base cannot do that at its forward speed, and the rotation test, which assumes it can,
+    /// would send it across the target. 1.5 m: 2.5·r_C.
+    pub side_commit_distance: f64,
     /// The "passed" latch is set when the base is within r_C of the target, or when the target is
     /// abeam or behind the base (no component ahead) while within r_C plus this margin, m.
     pub pass_margin: f64,
+    /// Largest turn from the tangent direction at ξ_C to ξ_C's heading (toward the next target),
+    /// rad. π/12 (15°): the exp1 layouts bend about 6° at the cube and are unaffected; larger
+    /// bends (exp2's loop) are made after the target is passed, not while the arm reaches.
+    pub max_approach_turn: f64,
+    /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
+    /// commanded ω may change by per second. 1.0: the base's full capability.
+    pub yaw_acceleration_fraction: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -114,7 +154,10 @@ impl Default for BaseControllerConfig {
             min_goal_distance: 0.2,
             approach_heading: ApproachHeading::default(),
             side_hysteresis: 0.1,
+            side_commit_distance: 1.5,
             pass_margin: 0.3,
+            max_approach_turn: std::f64::consts::PI / 12.0,
+            yaw_acceleration_fraction: 1.0,
         }
     }
 }
@@ -133,9 +176,18 @@ impl BaseControllerConfig {
             ("min_goal_distance", self.min_goal_distance > 0.0),
             (
                 "side_hysteresis",
-                (0.0..1.0).contains(&self.side_hysteresis),
+                (0.0..std::f64::consts::PI).contains(&self.side_hysteresis),
             ),
             ("pass_margin", self.pass_margin >= 0.0),
+            ("side_commit_distance", self.side_commit_distance >= 0.0),
+            (
+                "max_approach_turn",
+                (0.0..=std::f64::consts::PI).contains(&self.max_approach_turn),
+            ),
+            (
+                "yaw_acceleration_fraction",
+                self.yaw_acceleration_fraction > 0.0 && self.yaw_acceleration_fraction.is_finite(),
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -143,7 +195,8 @@ impl BaseControllerConfig {
                     file,
                     format!("base_controller.{key}"),
                     "out of range (need v_F > 0, r_C > 0, k_α > 1, k_β < 0, \
-                     min_goal_distance > 0, 0 ≤ side_hysteresis < 1, pass_margin ≥ 0)",
+                     min_goal_distance > 0, 0 ≤ side_hysteresis < π, pass_margin ≥ 0, side_commit_distance ≥ 0, \
+                     0 ≤ max_approach_turn ≤ π, yaw_acceleration_fraction > 0)",
                 ));
             }
         }
@@ -164,6 +217,8 @@ pub struct BaseControllerInput {
     pub target: TargetEstimate,
     /// Position of the next target (x and y are used).
     pub next_target: nalgebra::Vector3<f64>,
+    /// Time since the previous step, s: bounds the change of ω (see the module docs).
+    pub dt: f64,
 }
 
 /// What the base controller produces each step.
@@ -197,6 +252,8 @@ pub struct BaseModel {
     pub max_speed: f64,
     /// Base yaw-rate limit, rad/s.
     pub max_yaw_rate: f64,
+    /// Base yaw acceleration limit, rad/s².
+    pub max_yaw_acceleration: f64,
 }
 
 impl BaseModel {
@@ -210,6 +267,7 @@ impl BaseModel {
             arm_base: Vector2::new(arm_base.x, arm_base.y),
             max_speed: limits[1].velocity,
             max_yaw_rate: limits[0].velocity,
+            max_yaw_acceleration: limits[0].acceleration,
         }
     }
 }
@@ -223,6 +281,8 @@ pub struct BaseController {
     side: PassSide,
     passed: bool,
     closest_approach: BasePose,
+    /// The ω commanded on the previous step (0 at rest, before the first step).
+    last_omega: f64,
 }
 
 /// Output of the polar controller for one goal pose.
@@ -289,6 +349,58 @@ pub fn tangent_point(
     ))
 }
 
+/// `goal` moved along its own heading until it is at least `distance` from `base`.
+///
+/// Near ξ_C the polar law is ill-conditioned: α and β swing as ρ → 0 (the clamp on ρ only
+/// bounds the gain). A target moving along with the base keeps its tangent point just ahead of
+/// the base, so the base would weave hard there; aiming at a point on the goal's line at least
+/// `distance` ahead keeps the command smooth and still brings the base onto that line.
+pub fn look_ahead(base: &BasePose, goal: BasePose, distance: f64) -> BasePose {
+    let heading = Vector2::new(goal.yaw.cos(), goal.yaw.sin());
+    let offset = Vector2::new(goal.x - base.x, goal.y - base.y);
+    // Smallest s ≥ 0 with |offset + s·heading| ≥ distance.
+    let along = offset.dot(&heading);
+    let c = offset.norm_squared() - distance * distance;
+    if c >= 0.0 {
+        return goal;
+    }
+    let s = -along + (along * along - c).sqrt();
+    BasePose::new(goal.x + s * heading.x, goal.y + s * heading.y, goal.yaw)
+}
+
+/// A turn `angle` in (−π, π] taken the way round that `side` turns at its target: left (in
+/// (−π/2, 3π/2)) for [`PassSide::Left`], right (in (−3π/2, π/2)) for [`PassSide::Right`]. A small
+/// turn the other way (under π/2) is kept as it is.
+pub fn turn_toward_side(angle: f64, side: PassSide) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, TAU};
+    match side {
+        PassSide::Left if angle < -FRAC_PI_2 => angle + TAU,
+        PassSide::Right if angle > FRAC_PI_2 => angle - TAU,
+        _ => angle,
+    }
+}
+
+/// Net rotation of the base's heading, rad (positive to the left), on the way from `base` past
+/// `target` on `side` toward `next`: the turn onto the tangent line to the r_C circle, then the
+/// turn at the tangent point from the tangent direction toward `next`. At the target the base
+/// turns away from it (left when passing on the left, the target on its right), so that turn is
+/// taken in (−π/2, 3π/2) on the left and in (−3π/2, π/2) on the right: a small turn toward the
+/// target's side is allowed (it happens once the target is behind), a large one goes the other
+/// way round. `None` when the base is inside the circle.
+pub fn pass_rotation(
+    base: &BasePose,
+    target: Vector2<f64>,
+    next: Vector2<f64>,
+    radius: f64,
+    side: PassSide,
+) -> Option<f64> {
+    let (point, heading) = tangent_point(Vector2::new(base.x, base.y), target, radius, side)?;
+    let onto_tangent = wrap_angle(heading - base.yaw);
+    let to_next = next - point;
+    let departure = to_next.y.atan2(to_next.x);
+    Some(onto_tangent + turn_toward_side(wrap_angle(departure - heading), side))
+}
+
 fn xy(v: &nalgebra::Vector3<f64>) -> Vector2<f64> {
     Vector2::new(v.x, v.y)
 }
@@ -303,6 +415,7 @@ impl BaseController {
             side: PassSide::Left,
             passed: false,
             closest_approach: BasePose::default(),
+            last_omega: 0.0,
         }
     }
 
@@ -331,6 +444,7 @@ impl BaseController {
         ensure_finite("target.position", input.target.position.iter())?;
         ensure_finite("target.velocity", input.target.velocity.iter())?;
         ensure_finite("next_target", input.next_target.iter())?;
+        ensure_finite("dt", std::slice::from_ref(&input.dt))?;
 
         if self.task_index != Some(input.task_index) {
             self.task_index = Some(input.task_index);
@@ -364,21 +478,45 @@ impl BaseController {
             Some((point, tangent_heading)) => {
                 let yaw = match self.config.approach_heading {
                     ApproachHeading::Tangent => tangent_heading,
-                    ApproachHeading::TowardNext => (next.y - point.y).atan2(next.x - point.x),
+                    ApproachHeading::TowardNext => {
+                        let toward_next = (next.y - point.y).atan2(next.x - point.x);
+                        let limit = self.config.max_approach_turn;
+                        wrap_angle(
+                            tangent_heading
+                                + wrap_angle(toward_next - tangent_heading).clamp(-limit, limit),
+                        )
+                    }
                 };
                 self.closest_approach = BasePose::new(point.x, point.y, yaw);
                 self.closest_approach
             }
-            None => {
-                // Passed: steer straight for the next target (β = 0).
-                let yaw = (next.y - b.y).atan2(next.x - b.x);
-                BasePose::new(next.x, next.y, yaw)
-            }
+            None => self.after_pass_goal(b, next),
+        };
+        let goal = if self.passed {
+            goal
+        } else {
+            look_ahead(b, goal, self.config.min_goal_distance)
         };
         let polar = polar_control(b, &goal, speed, &self.config);
-        let omega = polar
-            .omega
+        let polar_omega = if self.passed {
+            // β = 0, and α taken the way round that turns away from the passed target (it may
+            // exceed π: a U-turn goes round the far side).
+            let alpha = turn_toward_side(wrap_angle(polar.alpha), self.side);
+            self.config.k_alpha * alpha * speed
+                / polar
+                    .rho
+                    .max(self.config.min_goal_distance)
+                    .max(MIN_GOAL_DISTANCE)
+        } else {
+            polar.omega
+        };
+        let max_change = self.model.max_yaw_acceleration
+            * self.config.yaw_acceleration_fraction
+            * input.dt.max(0.0);
+        let omega = polar_omega
+            .clamp(self.last_omega - max_change, self.last_omega + max_change)
             .clamp(-self.model.max_yaw_rate, self.model.max_yaw_rate);
+        self.last_omega = omega;
 
         let (time_to_range, range_entry_pose) = if self.passed {
             (0.0, *b)
@@ -396,28 +534,65 @@ impl BaseController {
         })
     }
 
-    fn update_side(&mut self, input: &BaseControllerInput, fresh: bool) {
-        if self.passed {
-            return;
+    /// The goal once the target is passed: the tangent point on the next target's r_C circle
+    /// reached with the smaller turn away from the passed target (left after passing on the left),
+    /// with the heading pointing at it (β = 0). Inside that circle: straight on.
+    fn after_pass_goal(&self, base: &BasePose, next: Vector2<f64>) -> BasePose {
+        let base_xy = Vector2::new(base.x, base.y);
+        let r_c = self.config.closest_approach_radius;
+        let turn = |heading: f64| turn_toward_side(wrap_angle(heading - base.yaw), self.side).abs();
+        let point = [PassSide::Left, PassSide::Right]
+            .into_iter()
+            .filter_map(|side| tangent_point(base_xy, next, r_c, side))
+            .min_by(|a, b| turn(a.1).total_cmp(&turn(b.1)));
+        match point {
+            Some((point, heading)) => BasePose::new(point.x, point.y, heading),
+            None => {
+                let ahead = base_xy + Vector2::new(base.yaw.cos(), base.yaw.sin());
+                BasePose::new(ahead.x, ahead.y, base.yaw)
+            }
         }
+    }
+
+    fn update_side(&mut self, input: &BaseControllerInput, fresh: bool) {
         let base_xy = Vector2::new(input.base.x, input.base.y);
         let target = xy(&input.target.position);
         let next = xy(&input.next_target);
+        let distance = (target - base_xy).norm();
+        if self.passed || (!fresh && distance < self.config.side_commit_distance) {
+            return;
+        }
         let (Some(a), Some(c)) = (
             (target - base_xy).try_normalize(1e-9),
             (next - target).try_normalize(1e-9),
         ) else {
             return;
         };
-        let bend = a.perp(&c);
         let band = if fresh {
             0.0
         } else {
             self.config.side_hysteresis
         };
-        if bend > band {
+        if a.dot(&c) >= 0.0 {
+            // A bend under 90°: the side of the line base→target on which the next target lies.
+            let bend = a.perp(&c);
+            if bend > band {
+                self.side = PassSide::Left;
+            } else if bend < -band {
+                self.side = PassSide::Right;
+            }
+            return;
+        }
+        // A bend over 90° (toward a U-turn): the side that turns the base less.
+        let r_c = self.config.closest_approach_radius;
+        let rotation = |side| pass_rotation(&input.base, target, next, r_c, side);
+        let (Some(left), Some(right)) = (rotation(PassSide::Left), rotation(PassSide::Right))
+        else {
+            return;
+        };
+        if left.abs() + band < right.abs() {
             self.side = PassSide::Left;
-        } else if bend < -band {
+        } else if right.abs() + band < left.abs() {
             self.side = PassSide::Right;
         }
     }
@@ -519,6 +694,7 @@ mod tests {
             arm_base: Vector2::new(0.15, 0.0),
             max_speed: 1.2,
             max_yaw_rate: 1.5,
+            max_yaw_acceleration: 2.0,
         }
     }
 
@@ -542,8 +718,8 @@ mod tests {
         speeds: Vec<f64>,
         /// Time of the first step reporting "passed", s.
         passed_at: Option<f64>,
-        /// Distance from the base to the next target at the end, m.
-        final_distance_to_next: f64,
+        /// Smallest distance from the base to the next target over the run, m.
+        min_distance_to_next: f64,
     }
 
     fn drive_past(
@@ -562,7 +738,7 @@ mod tests {
             side: PassSide::Left,
             speeds: Vec::new(),
             passed_at: None,
-            final_distance_to_next: 0.0,
+            min_distance_to_next: f64::INFINITY,
         };
         let steps = (duration / DT) as usize;
         for k in 0..steps {
@@ -577,6 +753,7 @@ mod tests {
                         velocity: target_velocity,
                     },
                     next_target: next,
+                    dt: DT,
                 })
                 .unwrap();
             let to_target = Vector2::new(position.x - base.x, position.y - base.y);
@@ -592,8 +769,10 @@ mod tests {
             assert!(out.command.omega.is_finite() && out.command.omega.abs() <= 1.5);
             pass.speeds.push(out.command.v);
             integrate(&mut base, out.command, DT);
+            pass.min_distance_to_next = pass
+                .min_distance_to_next
+                .min(Vector2::new(next.x - base.x, next.y - base.y).norm());
         }
-        pass.final_distance_to_next = Vector2::new(next.x - base.x, next.y - base.y).norm();
         pass
     }
 
@@ -635,9 +814,12 @@ mod tests {
                 20.0,
             );
             assert_passes(&pass, PassSide::Left);
+            // After passing, the base heads for the next target's r_C circle: it goes by the
+            // next target too, at about r_C, never at it.
             assert!(
-                pass.final_distance_to_next < 0.5,
-                "did not go on to the next target"
+                (0.5..0.75).contains(&pass.min_distance_to_next),
+                "went by the next target at {:.3} m",
+                pass.min_distance_to_next
             );
         }
     }
@@ -654,9 +836,12 @@ mod tests {
                 20.0,
             );
             assert_passes(&pass, PassSide::Right);
+            // After passing, the base heads for the next target's r_C circle: it goes by the
+            // next target too, at about r_C, never at it.
             assert!(
-                pass.final_distance_to_next < 0.5,
-                "did not go on to the next target"
+                (0.5..0.75).contains(&pass.min_distance_to_next),
+                "went by the next target at {:.3} m",
+                pass.min_distance_to_next
             );
         }
     }
@@ -708,14 +893,18 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(0.3, 0.2, 0.45)),
                 next_target: Vector3::new(0.0, 3.0, 0.35),
+                // A long step, so that the turn-acceleration limit lets the polar law through.
+                dt: 1.0,
             })
             .unwrap();
         assert!(out.passed);
         assert_eq!(out.time_to_range, 0.0);
         assert_eq!(out.closest_approach, BasePose::new(0.0, 0.0, 0.0));
-        // The next target is 3 m away, 90° to the left, and the goal heading points at it
-        // (β = 0): ω = k_α·α·v_F/ρ = 4·(π/2)·0.3/3.
-        let expected = 4.0 * std::f64::consts::FRAC_PI_2 * 0.3 / 3.0;
+        // The next target is 3 m away, 90° to the left. The goal is the tangent point on its
+        // r_C circle needing the smaller turn, at π/2 − asin(r_C/3), ρ = √(3² − r_C²) away, with
+        // the heading pointing at it (β = 0): ω = k_α·α·v_F/ρ.
+        let alpha = std::f64::consts::FRAC_PI_2 - (0.6f64 / 3.0).asin();
+        let expected = 4.0 * alpha * 0.3 / (9.0f64 - 0.36).sqrt();
         assert!(
             (out.command.omega - expected).abs() < 1e-12,
             "{}",
@@ -743,6 +932,7 @@ mod tests {
             base: BasePose::new(0.0, 0.0, 0.0),
             target: TargetEstimate::fixed(Vector3::new(3.0, 0.0, 0.45)),
             next_target: Vector3::new(6.0, -0.1, 0.35),
+            dt: DT,
         };
         assert_eq!(controller.step(&input).unwrap().side, PassSide::Right);
         // Noise moves the next target slightly to the left: still inside the band, keep right.
@@ -772,6 +962,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(target),
                     next_target: Vector3::new(7.0, 1.0, 0.35),
+                    dt: DT,
                 })
                 .unwrap();
             let arm_base =
@@ -817,6 +1008,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(-3.0, 0.5, 0.45)),
                 next_target: Vector3::new(-6.0, 0.0, 0.35),
+                dt: 1.0,
             })
             .unwrap();
         assert_eq!(out.command.v, 0.25);
@@ -832,6 +1024,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(f64::NAN, 0.0, 0.45)),
                 next_target: Vector3::new(6.0, 0.0, 0.35),
+                dt: DT,
             })
             .unwrap_err();
         assert_eq!(err.field, "target.position");
@@ -852,6 +1045,7 @@ mod tests {
                     base: BasePose::new(0.0, 0.0, 0.0),
                     target: TargetEstimate::fixed(target),
                     next_target: target,
+                    dt: DT,
                 })
                 .unwrap();
             let values = [
@@ -864,6 +1058,101 @@ mod tests {
             ];
             assert!(values.iter().all(|v| v.is_finite()), "{out:?}");
         }
+    }
+
+    #[test]
+    fn the_turn_command_is_rate_limited_across_a_goal_switch() {
+        let model = frankie_like();
+        let mut controller = BaseController::new(BaseControllerConfig::default(), model);
+        let max_change = model.max_yaw_acceleration * DT;
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        // Task 0: a target ahead and to the right, next target far to the left.
+        let mut input = BaseControllerInput {
+            task_index: 0,
+            base,
+            target: TargetEstimate::fixed(Vector3::new(3.0, -0.5, 0.45)),
+            next_target: Vector3::new(4.0, 3.0, 0.35),
+            dt: DT,
+        };
+        let mut last = 0.0;
+        let mut largest_step: f64 = 0.0;
+        for k in 0..1500 {
+            if k == 300 {
+                // The task ends: the goal jumps to a target behind and to the left, where the
+                // polar law asks for a hard turn the other way.
+                input.task_index = 1;
+                input.target = TargetEstimate::fixed(Vector3::new(-2.0, 2.0, 0.35));
+                input.next_target = Vector3::new(-4.0, 0.0, 0.45);
+            }
+            input.base = base;
+            let out = controller.step(&input).unwrap();
+            largest_step = largest_step.max((out.command.omega - last).abs());
+            last = out.command.omega;
+            integrate(&mut base, out.command, DT);
+        }
+        assert!(
+            largest_step <= max_change + 1e-12,
+            "ω changed by {largest_step} in one step, limit {max_change}"
+        );
+        // The limit spreads the turn, it does not stop it: the base ends up heading back.
+        assert!(base.x < 2.0, "the base never turned round: {base:?}");
+    }
+
+    #[test]
+    fn a_u_turn_keeps_its_side_and_turns_away_from_the_target() {
+        // Experiment 2's container: approached from the west with the next target (the next
+        // cube) back west, slightly north. The base must pass on one side and turn round the
+        // far side, never crossing the target's front.
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let target = Vector3::new(3.0, 0.0, 0.35);
+        let next = Vector3::new(0.0, 0.42, 0.45);
+        let mut base = BasePose::new(0.6, -0.3, 0.0);
+        let mut sides = Vec::new();
+        let mut min_distance = f64::INFINITY;
+        let mut turned_back = false;
+        for _ in 0..1500 {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target: TargetEstimate::fixed(target),
+                    next_target: next,
+                    dt: DT,
+                })
+                .unwrap();
+            if !out.passed {
+                sides.push(out.side);
+            }
+            min_distance =
+                min_distance.min((Vector2::new(3.0, 0.0) - Vector2::new(base.x, base.y)).norm());
+            turned_back |= base.yaw.cos() < -0.9;
+            integrate(&mut base, out.command, DT);
+        }
+        assert!(
+            sides.windows(2).all(|w| w[0] == w[1]),
+            "the side flipped: {sides:?}"
+        );
+        assert!(
+            min_distance > 0.55,
+            "came within {min_distance:.3} m of the target"
+        );
+        assert!(turned_back, "never turned back toward the next target");
+    }
+
+    #[test]
+    fn pass_rotation_prefers_the_side_the_next_target_bends_to() {
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        let target = Vector2::new(3.0, 0.0);
+        let rotation =
+            |next: Vector2<f64>, side| pass_rotation(&base, target, next, 0.6, side).unwrap();
+        // A 90° bend to the left: left is the short way round.
+        let next = Vector2::new(3.0, 3.0);
+        assert!(rotation(next, PassSide::Left).abs() < rotation(next, PassSide::Right).abs());
+        // A clear bend to the right.
+        let next = Vector2::new(5.0, -3.0);
+        assert!(rotation(next, PassSide::Right).abs() < rotation(next, PassSide::Left).abs());
+        // Passing on the left and then turning right by more than 90° goes the long way round.
+        assert!(rotation(Vector2::new(2.0, -3.0), PassSide::Left) > std::f64::consts::PI);
     }
 
     #[test]

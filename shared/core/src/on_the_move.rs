@@ -23,7 +23,7 @@
 //!   of [`crate::base_slip`]: minus the tool motion caused by the difference between the base's
 //!   measured velocity and the one the QP commanded on the previous cycle, so the arm cancels
 //!   the base's gain error and lag instead of the final-phase servo chasing them.
-//! - **Base target rate limit** (off by default, see [`crate::base_command_rate`]). When on, the
+//! - **Base target rate limit** (on by default, see [`crate::base_command_rate`]). When on, the
 //!   base controller's velocity target reaches the QP with its change limited to the base's
 //!   acceleration limits, so the QP never plans the arm around a base turn the base cannot make.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
@@ -309,6 +309,7 @@ impl OnTheMove {
             base: input.base,
             target: input.target,
             next_target: next,
+            dt: input.dt,
         }) else {
             self.rejected_inputs += 1;
             return self.hold(task_index, phase);

@@ -443,6 +443,7 @@ mod tests {
             arm_base: Vector2::new(0.15, 0.0),
             max_speed: 1.2,
             max_yaw_rate: 1.5,
+            max_yaw_acceleration: 2.0,
         }
     }
 
@@ -481,6 +482,7 @@ mod tests {
                     base,
                     target,
                     next_target: Vector3::new(6.0, 0.0, 0.35),
+                    dt: DT,
                 })
                 .unwrap();
             let output = reacher

@@ -18,6 +18,8 @@ pub struct BasePlannerInput {
     pub base: BasePose,
     /// Target of the current task (see [`super::TargetSelector`]).
     pub target: TargetEstimate,
+    /// Control period, s (bounds the change of the turn command between cycles).
+    pub dt: f64,
 }
 
 /// What the base planner publishes each cycle.
@@ -59,6 +61,7 @@ impl BasePlannerCycle {
             base: input.base,
             target: input.target,
             next_target: input.mission.next_waypoint,
+            dt: input.dt,
         }) {
             Ok(plan) => Some(BasePlannerOutput { task_index, plan }),
             Err(_) => {

@@ -191,6 +191,7 @@ fn base_planner_drives_for_the_last_task_after_completion_and_refuses_nan() {
         mission,
         base: BasePose::default(),
         target: TargetEstimate::fixed(mission.target),
+        dt: 0.005,
     };
     let out = planner.step(&input).expect("a plan");
     assert_eq!(out.task_index, 0);
@@ -445,6 +446,7 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
                 mission: view,
                 base,
                 target,
+                dt,
             })
             .expect("a plan");
         let tool_pose = robot.tool_pose(&base, &q);
