@@ -19,9 +19,11 @@ pub mod live;
 pub mod protobuf_check;
 pub mod recorder;
 pub mod sink;
+pub mod writeback;
 
 pub use channels::ChannelRegistry;
 pub use inspect::{LogSummary, scan};
 pub use live::{LiveConfig, LiveSink};
 pub use recorder::{LoggerConfig, Record, Recorder, SceneLayout};
 pub use sink::McapSink;
+pub use writeback::WritebackFile;

@@ -21,7 +21,9 @@ use iceoryx2::prelude::*;
 use motm_bus::{Bus, BusError, Flow, LoopConfig, ServiceLoop, Subscriber};
 use motm_logger::json::ToJson;
 use motm_logger::recorder::{Recorder, topics};
-use motm_logger::{ChannelRegistry, LiveSink, LoggerConfig, McapSink, Record, SceneLayout};
+use motm_logger::{
+    ChannelRegistry, LiveSink, LoggerConfig, McapSink, Record, SceneLayout, WritebackFile,
+};
 use motm_msgs::{self as msgs, Message, services};
 use serde_json::json;
 
@@ -358,6 +360,13 @@ fn main() {
         if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
             eprintln!("{PROCESS}: cannot switch to SCHED_IDLE; running at normal priority");
         }
+        // ioprio_set(IOPRIO_WHO_PROCESS, self, IOPRIO_CLASS_IDLE): the disk only when idle.
+        const IOPRIO_WHO_PROCESS: libc::c_long = 1;
+        const IOPRIO_IDLE: libc::c_long = 3 << 13;
+        // SAFETY: ioprio_set(2) takes plain integers. A failure keeps the normal I/O class.
+        if unsafe { libc::syscall(libc::SYS_ioprio_set, IOPRIO_WHO_PROCESS, 0, IOPRIO_IDLE) } != 0 {
+            eprintln!("{PROCESS}: cannot switch to the idle I/O class; keeping the normal one");
+        }
     }
     if let Err(e) = run(&cli, &config, &mut recorder) {
         eprintln!("{PROCESS}: {e}");
@@ -368,7 +377,7 @@ fn main() {
 /// Where the records go: each is encoded once, then written to the file and the live view.
 struct Sinks {
     channels: ChannelRegistry,
-    file: Option<(PathBuf, McapSink<File>)>,
+    file: Option<(PathBuf, McapSink<WritebackFile>)>,
     live: Option<LiveSink>,
 }
 
@@ -379,6 +388,7 @@ impl Sinks {
             Some(path) => {
                 let name = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
                 let file = File::create(path).map_err(|e| name(&e))?;
+                let file = WritebackFile::new(file, config.writeback_bytes);
                 let sink = McapSink::new(file, config.chunk_bytes, config.flush_interval_s)
                     .map_err(|e| name(&e))?;
                 Some((path.clone(), sink))

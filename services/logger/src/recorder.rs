@@ -65,9 +65,10 @@ pub struct LoggerConfig {
     /// solve, command and twist) and every 4th of the 1 kHz hardware, driver and watchdog
     /// streams, which keeps the logger's CPU use small.
     pub raw_rate_hz: f64,
-    /// Whether the logger runs under Linux's `SCHED_IDLE` policy: it then gets a CPU only
-    /// when no normal process wants one, so it never delays a control process; under full
-    /// load its queues overflow instead (counted). `false` runs it at normal priority.
+    /// Whether the logger runs under Linux's `SCHED_IDLE` policy and the idle I/O class: it
+    /// then gets a CPU only when no normal process wants one, and the disk only when no one
+    /// else uses it, so it never delays a control process; under full load its queues
+    /// overflow instead (counted). `false` runs it at normal priority.
     pub idle_scheduling: bool,
     /// Transforms, tool pose and kinematics, Hz (50 Hz: smooth in the 3D view, a few kB/s).
     pub tf_rate_hz: f64,
@@ -82,6 +83,10 @@ pub struct LoggerConfig {
     pub chunk_bytes: u64,
     /// Longest time a chunk stays open before it is written out, s.
     pub flush_interval_s: f64,
+    /// The logger writes the file's pages back to disk itself every this many bytes (see
+    /// [`crate::writeback`]) instead of leaving it to the kernel's normal-priority flusher
+    /// threads; 0 leaves it to the kernel.
+    pub writeback_bytes: u64,
     /// The live view's settings (`[live]`; used with `logger --live ADDR`).
     pub live: crate::live::LiveConfig,
 }
@@ -98,6 +103,7 @@ impl Default for LoggerConfig {
             trail_points: 400,
             chunk_bytes: 512 * 1024,
             flush_interval_s: 1.0,
+            writeback_bytes: 1024 * 1024,
             live: crate::live::LiveConfig::default(),
         }
     }
