@@ -2,7 +2,9 @@
 //! stack `--pairs` times without and with `--mcap` (seeds counted up from `--seed`, the order
 //! of each pair alternating so a drift in machine load hits both sides alike) and reports, per
 //! control process, the median and the worst over the runs of each run's p99 cycle time (the
-//! process's last heartbeat: its last 2000 cycles), and the ratio with ÷ without.
+//! process's last heartbeat: its last 2000 cycles), the ratio of those medians, and the median
+//! over the pairs of each pair's ratio (the pairs share a seed and the machine's load of the
+//! moment, so this one is the steadier on a noisy machine).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -45,6 +47,20 @@ const CONTROL_PROCESSES: [&str; 8] = [
     "watchdog",
 ];
 
+/// Median of `values` (sorts them); `None` when empty.
+fn median(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    Some(if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    })
+}
+
 /// One side's p99 cycle times, µs, per process over the runs.
 #[derive(Default)]
 struct Side {
@@ -70,14 +86,16 @@ impl Side {
     /// Median and maximum of `name`'s per-run p99, µs.
     fn summary(&self, name: &str) -> Option<(f64, f64)> {
         let mut values = self.p99_us.get(name)?.clone();
-        values.sort_by(f64::total_cmp);
-        let median = if values.len() % 2 == 1 {
-            values[values.len() / 2]
-        } else {
-            0.5 * (values[values.len() / 2 - 1] + values[values.len() / 2])
-        };
+        let median = median(&mut values)?;
         Some((median, *values.last()?))
     }
+}
+
+/// Median over the pairs of `name`'s with ÷ without p99 (the runs were added pair by pair).
+fn paired_ratio(without: &Side, with: &Side, name: &str) -> Option<f64> {
+    let (off, on) = (without.p99_us.get(name)?, with.p99_us.get(name)?);
+    let mut ratios: Vec<f64> = off.iter().zip(on).map(|(off, on)| on / off).collect();
+    median(&mut ratios)
 }
 
 /// Runs `motm bench logger`.
@@ -144,8 +162,8 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
             args.pairs
         );
         println!(
-            "{:<14} {:>18} {:>18} {:>8} {:>14}",
-            "process", "without logger", "with logger", "ratio", "deadline misses"
+            "{:<14} {:>18} {:>18} {:>8} {:>12} {:>15}",
+            "process", "without logger", "with logger", "ratio", "paired ratio", "deadline misses"
         );
     }
     for name in CONTROL_PROCESSES {
@@ -155,6 +173,7 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
             continue;
         };
         let ratio = on_median / off_median;
+        let paired = paired_ratio(without, with, name).unwrap_or(f64::NAN);
         let misses = (
             without.deadline_misses.get(name).copied().unwrap_or(0),
             with.deadline_misses.get(name).copied().unwrap_or(0),
@@ -168,13 +187,14 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
                     "with_median_p99_us": on_median,
                     "with_worst_p99_us": on_max,
                     "ratio": ratio,
+                    "paired_ratio": paired,
                     "deadline_misses_without": misses.0,
                     "deadline_misses_with": misses.1,
                 }),
             );
         } else {
             println!(
-                "{name:<14} {:>8.0} / {:>7.0} {:>8.0} / {:>7.0} {ratio:>8.2} {:>6} / {:<6}",
+                "{name:<14} {:>8.0} / {:>7.0} {:>8.0} / {:>7.0} {ratio:>8.2} {paired:>12.2} {:>6} / {:<6}",
                 off_median, off_max, on_median, on_max, misses.0, misses.1
             );
         }
