@@ -15,38 +15,23 @@ use std::time::{Duration, Instant};
 
 use motm_bus::inject::{Malformation, open_injector};
 use motm_bus::{Bus, IpcConfig, Latest, Qos};
-use motm_e2e::{STACK_PROCESSES, motm, spawn_motm};
+use motm_e2e::{STACK_PROCESSES, motm, one_stack_at_a_time, spawn_motm};
 use motm_msgs::{Heartbeat, services};
 
-/// The stack's services that a kill may hit. sim-world is the simulated robot and world (its
-/// state is the physics, not something the stack rebuilds), and the supervisor is the one
+/// The stack's services that a kill may hit: all but sim-world, the simulated robot and world
+/// (its state is the physics, not something the stack rebuilds), and the supervisor, the one
 /// that restarts the others.
-const KILLABLE: [&str; 8] = [
-    "panda-driver",
-    "ld60-driver",
-    "perception",
-    "base-planner",
-    "reacher",
-    "final-phase",
-    "qp-resolver",
-    "watchdog",
-];
+fn killable() -> impl Iterator<Item = &'static str> {
+    STACK_PROCESSES
+        .into_iter()
+        .filter(|process| !matches!(*process, "sim-world" | "supervisor"))
+}
 
 /// Control period of the frankie stack (200 Hz), ms.
 const CONTROL_PERIOD_MS: f64 = 5.0;
 
 /// Runs in flight at once.
 const PARALLEL_RUNS: usize = 3;
-
-/// Taken by each test of this file for its runs, so that they do not overlap.
-static STACK_RUNS: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// Takes [`STACK_RUNS`] (a test that failed while holding it does not block the others).
-fn take_turn() -> std::sync::MutexGuard<'static, ()> {
-    STACK_RUNS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-}
 
 /// SplitMix64: a seeded, reproducible sequence of kill times.
 struct SplitMix(u64);
@@ -97,12 +82,12 @@ fn rejected_total(report: &serde_json::Value) -> u64 {
 
 #[test]
 fn killing_each_service_mid_task_stays_safe_and_the_task_completes() {
-    let _turn = take_turn();
+    let _turn = one_stack_at_a_time();
     // Three kills per service at seeded times over the task (which takes ~13 s): 24 runs, so
     // that the completion share is measured on more than a handful.
     let mut rng = SplitMix(0x6d6f_746d);
     let jobs: Vec<(String, f64)> = (0..3)
-        .flat_map(|_| KILLABLE.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+        .flat_map(|_| killable().map(String::from))
         .map(|s| (s, 2.0 + 9.0 * rng.next_unit()))
         .collect();
     let mut results = Vec::new();
@@ -167,7 +152,7 @@ fn killing_each_service_mid_task_stays_safe_and_the_task_completes() {
 
 #[test]
 fn a_hung_qp_resolver_is_safe_stopped_within_three_cycles_and_control_resumes() {
-    let _turn = take_turn();
+    let _turn = one_stack_at_a_time();
     // During the reach (the grasp's closing, ~5.2-5.6 s, cannot wait for a hung resolver: the
     // fingers close on whatever is between them).
     let (report, stderr) = run_with_faults("stop", &["stop:qp-resolver@3+0.3".to_string()]);
@@ -241,7 +226,7 @@ fn rejected_counts(beats: &mut [Latest<Heartbeat>]) -> Vec<Option<u64>> {
 
 #[test]
 fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
-    let _turn = take_turn();
+    let _turn = one_stack_at_a_time();
     let prefix = format!("motmfltbad{}_", std::process::id());
     let mut child = spawn_motm(&["run", "--json"], &prefix);
     let ipc = IpcConfig {

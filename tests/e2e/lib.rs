@@ -61,17 +61,34 @@ fn cargo() -> String {
     std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
 }
 
-/// Runs `motm <args>` via `cargo run`, after building every binary of the stack, with the
-/// iceoryx2 prefix `prefix`.
-pub fn motm(args: &[&str], prefix: &str) -> Output {
+/// The command `motm <args>` via `cargo run` with the iceoryx2 prefix `prefix`, after
+/// building every binary of the stack.
+pub fn motm_command(args: &[&str], prefix: &str) -> Command {
     build_stack();
-    Command::new(cargo())
+    let mut command = Command::new(cargo());
+    command
         .current_dir(workspace_root())
         .args(["run", "--quiet", "-p", "motm", "--"])
         .args(args)
-        .env(motm_bus::PREFIX_ENV, prefix)
+        .env(motm_bus::PREFIX_ENV, prefix);
+    command
+}
+
+/// Runs `motm <args>` (see [`motm_command`]) and waits for it.
+pub fn motm(args: &[&str], prefix: &str) -> Output {
+    motm_command(args, prefix)
         .output()
         .expect("cargo run -p motm")
+}
+
+/// Held by each test that runs a stack while it runs, so that two stacks of one test binary
+/// never share the machine's few cores (they would measure the load). A test that failed
+/// while holding it does not block the others.
+pub fn one_stack_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static ONE_STACK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    ONE_STACK
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// Pids of live (non-zombie) processes whose command line mentions `needle`.
@@ -90,15 +107,10 @@ pub fn processes_mentioning(needle: &str) -> Vec<u32> {
     found
 }
 
-/// Starts `motm <args>` via `cargo run` in the background (after building the stack), with
-/// the iceoryx2 prefix `prefix` and stdout piped; the caller waits for it.
+/// Starts `motm <args>` (see [`motm_command`]) in the background with stdout and stderr
+/// piped; the caller waits for it.
 pub fn spawn_motm(args: &[&str], prefix: &str) -> std::process::Child {
-    build_stack();
-    Command::new(cargo())
-        .current_dir(workspace_root())
-        .args(["run", "--quiet", "-p", "motm", "--"])
-        .args(args)
-        .env(motm_bus::PREFIX_ENV, prefix)
+    motm_command(args, prefix)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()

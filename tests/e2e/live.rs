@@ -10,16 +10,13 @@ use std::path::PathBuf;
 use std::process::Child;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use motm_e2e::{processes_mentioning, spawn_motm};
-use motm_logger::live::{SUBPROTOCOL, client_request, parse_message_data};
+use motm_e2e::{one_stack_at_a_time, processes_mentioning, spawn_motm};
+use motm_logger::live::{client_handshake, parse_message_data};
 use motm_logger::protobuf_check::SchemaDecoder;
 use motm_logger::recorder::topics;
 use motm_msgs::services;
 use serde_json::{Value, json};
 use tungstenite::{Message, WebSocket};
-
-/// One stack at a time on the machine's few cores.
-static ONE_STACK_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Messages wanted on each watched channel.
 const WANTED: u64 = 20;
@@ -49,12 +46,8 @@ fn connect(addr: SocketAddr, run: &mut Child) -> WebSocket<TcpStream> {
     loop {
         if let Ok(stream) = TcpStream::connect(addr) {
             stream.set_read_timeout(Some(PATIENCE)).unwrap();
-            let (socket, response) = tungstenite::client(client_request(addr), stream)
-                .unwrap_or_else(|e| panic!("handshake with the live view: {e}"));
-            assert_eq!(
-                response.headers().get("Sec-WebSocket-Protocol").unwrap(),
-                SUBPROTOCOL
-            );
+            let socket =
+                client_handshake(stream, addr).unwrap_or_else(|e| panic!("live view: {e}"));
             socket
                 .get_ref()
                 .set_read_timeout(Some(Duration::from_millis(100)))
@@ -230,9 +223,7 @@ fn finish(run: Child, prefix: &str) -> Value {
 
 #[test]
 fn motm_run_live_serves_transforms_joint_states_and_plots_to_a_foxglove_client() {
-    let _stack = ONE_STACK_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+    let _stack = one_stack_at_a_time();
     let addr = free_addr();
     let prefix = format!("motme2e{}_live_", std::process::id());
     let mut run = spawn_motm(&["run", "--json", "--live", &addr.to_string()], &prefix);
@@ -247,9 +238,7 @@ fn motm_run_live_serves_transforms_joint_states_and_plots_to_a_foxglove_client()
 
 #[test]
 fn with_mcap_and_live_one_logger_serves_the_view_and_writes_a_complete_file() {
-    let _stack = ONE_STACK_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
+    let _stack = one_stack_at_a_time();
     let addr = free_addr();
     let path: PathBuf =
         std::env::temp_dir().join(format!("motm-e2e-{}-live.mcap", std::process::id()));

@@ -5,30 +5,15 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use motm_e2e::{motm, processes_mentioning, workspace_root};
+use motm_e2e::{motm, motm_command, one_stack_at_a_time, processes_mentioning};
 use motm_logger::foxglove as fg;
 use motm_logger::protobuf_check::SchemaDecoder;
 use motm_logger::recorder::topics;
 use motm_msgs::services;
 use prost::Message as _;
-
-/// Held by each test that runs a stack, so the two stacks of this file do not share the
-/// machine's cores with each other (the logger runs under `SCHED_IDLE`).
-static ONE_STACK_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// Builds the logger (the stack packages are built by [`motm`]), so no stale binary runs.
-fn build_logger() {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(cargo)
-        .current_dir(workspace_root())
-        .args(["build", "--quiet", "-p", "motm-logger"])
-        .status()
-        .expect("cargo build");
-    assert!(status.success(), "cargo build -p motm-logger failed");
-}
 
 /// A fresh output path in the temp folder.
 fn out_path(name: &str) -> PathBuf {
@@ -79,10 +64,7 @@ fn expected_topics() -> Vec<String> {
 
 #[test]
 fn motm_run_mcap_logs_every_channel_decodable_with_its_stored_schema() {
-    let _stack = ONE_STACK_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    build_logger();
+    let _stack = one_stack_at_a_time();
     let path = out_path("run");
     let prefix = format!("motme2e{}_mcap_", std::process::id());
     let out = motm(
@@ -207,26 +189,18 @@ fn wait_for_size(path: &Path, bytes: u64, timeout: Duration) -> bool {
 
 #[test]
 fn a_logger_killed_mid_run_leaves_a_file_that_log_check_accepts() {
-    let _stack = ONE_STACK_AT_A_TIME
-        .lock()
-        .unwrap_or_else(|e| e.into_inner());
-    build_logger();
-    // Build everything first (a no-op when already built) so the run starts at once.
-    let _ = motm(&["log", "--help"], "motme2e_unused_");
+    let _stack = one_stack_at_a_time();
     let path = out_path("killed");
     let prefix = format!("motme2e{}_mcapkill_", std::process::id());
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut run = Command::new(cargo)
-        .current_dir(workspace_root())
-        .args([
-            "run", "--quiet", "-p", "motm", "--", "run", "--json", "--mcap",
-        ])
-        .arg(&path)
-        .env(motm_bus::PREFIX_ENV, &prefix)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("motm run");
+    // motm_command builds the whole stack, the logger included, before the run starts.
+    let mut run = motm_command(
+        &["run", "--json", "--mcap", path.to_str().unwrap()],
+        &prefix,
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::null())
+    .spawn()
+    .expect("motm run");
     // Whole chunks (512 kB, or whatever a second brought) are written within seconds: the
     // camera alone is ~1.4 MB/s.
     let grew = wait_for_size(&path, 3 << 19, Duration::from_secs(120));

@@ -5,19 +5,16 @@
 //! (it is the one running at the end, never counted as a restart), and the old one is gone.
 
 use motm_bus::IpcConfig;
-use motm_e2e::{motm, processes_mentioning};
+use motm_e2e::{motm, one_stack_at_a_time, processes_mentioning};
 use serde_json::Value;
 
 /// Control rate of the runs, Hz: one control period is 5 ms.
 const RATE_HZ: f64 = 200.0;
 
-/// One stack at a time: two at once on a small machine would measure the load, not the swap.
-static ONE_STACK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
 /// Runs `motm run --json --rate 200 <extra>` with a fresh prefix; checks what every swap run
 /// must satisfy and returns the report, the swap and stderr.
 fn run_with_swap(tag: &str, extra: &[&str]) -> (Value, Value, String) {
-    let _one = ONE_STACK.lock().unwrap_or_else(|e| e.into_inner());
+    let _one = one_stack_at_a_time();
     let prefix = format!("motme2e{}_{tag}_", std::process::id());
     let rate = RATE_HZ.to_string();
     let mut args = vec!["run", "--json", "--rate", &rate];
