@@ -276,6 +276,25 @@ pub fn client_request(addr: SocketAddr) -> tungstenite::handshake::client::Reque
     request
 }
 
+/// A client of the live view over `stream`, already connected to `addr`: the WebSocket
+/// handshake of [`client_request`], and an error unless the server accepted the Foxglove
+/// subprotocol.
+pub fn client_handshake(
+    stream: TcpStream,
+    addr: SocketAddr,
+) -> Result<WebSocket<TcpStream>, String> {
+    let (socket, response) =
+        tungstenite::client(client_request(addr), stream).map_err(|e| match e {
+            HandshakeError::Failure(e) => format!("handshake: {e}"),
+            HandshakeError::Interrupted(_) => "handshake timed out".to_owned(),
+        })?;
+    let accepted = response.headers().get("Sec-WebSocket-Protocol");
+    if accepted.is_none_or(|v| v.as_bytes() != SUBPROTOCOL.as_bytes()) {
+        return Err(format!("the server answered subprotocol {accepted:?}"));
+    }
+    Ok(socket)
+}
+
 /// The `advertise` entry of `channel`: a protobuf schema goes base64-encoded, a jsonschema
 /// as its text.
 pub fn advertisement(channel: &ChannelInfo) -> Value {

@@ -597,17 +597,22 @@ impl Recorder {
         }
         let mut approach = entity("closest_approach");
         if let Some(plan) = &self.plan {
-            let [x, y, yaw] = plan.closest_approach;
-            approach.arrows.push(arrow(
-                [x, y, 0.02],
-                UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+            // A planar pose `[x, y, yaw]` as an arrow just above the floor.
+            let pose_arrow = |[x, y, yaw]: [f64; 3], length, color| {
+                arrow(
+                    [x, y, 0.02],
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+                    length,
+                    color,
+                )
+            };
+            approach.arrows.push(pose_arrow(
+                plan.closest_approach,
                 0.4,
                 rgba(0.1, 0.8, 0.2, 1.0),
             ));
-            let [x, y, yaw] = plan.range_entry_pose;
-            approach.arrows.push(arrow(
-                [x, y, 0.02],
-                UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+            approach.arrows.push(pose_arrow(
+                plan.range_entry_pose,
                 0.25,
                 rgba(0.1, 0.5, 0.9, 1.0),
             ));

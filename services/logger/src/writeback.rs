@@ -54,47 +54,46 @@ impl WritebackFile {
         self.settled
     }
 
+    /// `sync_file_range(2)` over bytes `from..to` of the file with `flags`; whether it worked.
+    fn sync_range(&self, from: u64, to: u64, flags: libc::c_uint) -> bool {
+        // SAFETY: a plain syscall on an open descriptor this struct owns.
+        unsafe {
+            libc::sync_file_range(
+                self.file.as_raw_fd(),
+                from as libc::off64_t,
+                (to - from) as libc::off64_t,
+                flags,
+            ) == 0
+        }
+    }
+
     /// Starts the write-out of everything written since the last batch, then waits for the
     /// previous batch and drops it from the page cache.
     fn write_out(&mut self) {
-        let fd = self.file.as_raw_fd();
         let (from, to) = (self.started, self.written);
-        // SAFETY: plain syscalls on an open descriptor this struct owns.
-        let started = unsafe {
-            libc::sync_file_range(
-                fd,
-                from as libc::off64_t,
-                (to - from) as libc::off64_t,
-                libc::SYNC_FILE_RANGE_WRITE,
-            )
-        };
-        if started != 0 {
+        if !self.sync_range(from, to, libc::SYNC_FILE_RANGE_WRITE) {
             self.hint_errors += 1;
             return;
         }
         let (old_from, old_to) = (self.settled, from);
         if old_to > old_from {
-            // SAFETY: as above.
-            let waited = unsafe {
-                libc::sync_file_range(
-                    fd,
-                    old_from as libc::off64_t,
-                    (old_to - old_from) as libc::off64_t,
-                    libc::SYNC_FILE_RANGE_WAIT_BEFORE
-                        | libc::SYNC_FILE_RANGE_WRITE
-                        | libc::SYNC_FILE_RANGE_WAIT_AFTER,
-                )
-            };
-            // SAFETY: as above.
+            let waited = self.sync_range(
+                old_from,
+                old_to,
+                libc::SYNC_FILE_RANGE_WAIT_BEFORE
+                    | libc::SYNC_FILE_RANGE_WRITE
+                    | libc::SYNC_FILE_RANGE_WAIT_AFTER,
+            );
+            // SAFETY: as in `sync_range`.
             let dropped = unsafe {
                 libc::posix_fadvise(
-                    fd,
+                    self.file.as_raw_fd(),
                     old_from as libc::off_t,
                     (old_to - old_from) as libc::off_t,
                     libc::POSIX_FADV_DONTNEED,
                 )
-            };
-            if waited != 0 || dropped != 0 {
+            } == 0;
+            if !(waited && dropped) {
                 self.hint_errors += 1;
             }
             self.settled = old_to;

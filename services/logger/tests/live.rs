@@ -8,7 +8,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use motm_logger::foxglove as fg;
-use motm_logger::live::{LiveStats, SUBPROTOCOL, client_request, parse_message_data};
+use motm_logger::live::{LiveStats, client_handshake, client_request, parse_message_data};
 use motm_logger::protobuf_check::SchemaDecoder;
 use motm_logger::recorder::{Payload, Record};
 use motm_logger::{ChannelRegistry, LiveConfig, LiveSink};
@@ -119,15 +119,7 @@ fn plot(topic: &str, stamp_ns: u64, value: f64) -> Record {
 fn connect(addr: SocketAddr) -> WebSocket<TcpStream> {
     let stream = TcpStream::connect(addr).expect("connect");
     stream.set_read_timeout(Some(PATIENCE)).unwrap();
-    let (socket, response) = match tungstenite::client(client_request(addr), stream) {
-        Ok(done) => done,
-        Err(HandshakeError::Failure(e)) => panic!("handshake: {e}"),
-        Err(HandshakeError::Interrupted(_)) => panic!("handshake timed out"),
-    };
-    assert_eq!(
-        response.headers().get("Sec-WebSocket-Protocol").unwrap(),
-        SUBPROTOCOL
-    );
+    let socket = client_handshake(stream, addr).unwrap_or_else(|e| panic!("{e}"));
     socket
         .get_ref()
         .set_read_timeout(Some(Duration::from_millis(20)))
