@@ -91,11 +91,31 @@ impl Side {
     }
 }
 
-/// Median over the pairs of `name`'s with ÷ without p99 (the runs were added pair by pair).
-fn paired_ratio(without: &Side, with: &Side, name: &str) -> Option<f64> {
+/// Each pair's with ÷ without p99 of `name`, sorted (the runs were added pair by pair).
+fn pair_ratios(without: &Side, with: &Side, name: &str) -> Option<Vec<f64>> {
     let (off, on) = (without.p99_us.get(name)?, with.p99_us.get(name)?);
     let mut ratios: Vec<f64> = off.iter().zip(on).map(|(off, on)| on / off).collect();
-    median(&mut ratios)
+    ratios.sort_by(f64::total_cmp);
+    Some(ratios)
+}
+
+/// A distribution-free 95 % confidence interval of the median of `sorted` (the sign test's
+/// order statistics: the k-th smallest and k-th largest value for the largest k with
+/// P(Binomial(n, ½) < k) ≤ 2.5 %); `None` for fewer than 6 values, where no such k exists.
+fn median_confidence_interval(sorted: &[f64]) -> Option<(f64, f64)> {
+    let n = sorted.len();
+    let total = 2f64.powi(i32::try_from(n).ok()?);
+    // `below` sums C(n, i) for i < k; `choose` is C(n, k).
+    let (mut below, mut choose, mut k) = (0.0, 1.0, 0);
+    for i in 0..n {
+        if (below + choose) / total > 0.025 {
+            break;
+        }
+        below += choose;
+        choose = choose * (n - i) as f64 / (i + 1) as f64;
+        k = i + 1;
+    }
+    (k >= 1).then(|| (sorted[k - 1], sorted[n - k]))
 }
 
 /// Runs `motm bench logger`.
@@ -162,8 +182,14 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
             args.pairs
         );
         println!(
-            "{:<14} {:>18} {:>18} {:>8} {:>12} {:>15}",
-            "process", "without logger", "with logger", "ratio", "paired ratio", "deadline misses"
+            "{:<14} {:>18} {:>18} {:>8} {:>12} {:>13} {:>15}",
+            "process",
+            "without logger",
+            "with logger",
+            "ratio",
+            "paired ratio",
+            "95 % CI",
+            "deadline misses"
         );
     }
     for name in CONTROL_PROCESSES {
@@ -173,7 +199,9 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
             continue;
         };
         let ratio = on_median / off_median;
-        let paired = paired_ratio(without, with, name).unwrap_or(f64::NAN);
+        let ratios = pair_ratios(without, with, name).unwrap_or_default();
+        let paired = median(&mut ratios.clone()).unwrap_or(f64::NAN);
+        let (low, high) = median_confidence_interval(&ratios).unwrap_or((f64::NAN, f64::NAN));
         let misses = (
             without.deadline_misses.get(name).copied().unwrap_or(0),
             with.deadline_misses.get(name).copied().unwrap_or(0),
@@ -188,13 +216,14 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
                     "with_worst_p99_us": on_max,
                     "ratio": ratio,
                     "paired_ratio": paired,
+                    "paired_ratio_ci95": [low, high],
                     "deadline_misses_without": misses.0,
                     "deadline_misses_with": misses.1,
                 }),
             );
         } else {
             println!(
-                "{name:<14} {:>8.0} / {:>7.0} {:>8.0} / {:>7.0} {ratio:>8.2} {paired:>12.2} {:>6} / {:<6}",
+                "{name:<14} {:>8.0} / {:>7.0} {:>8.0} / {:>7.0} {ratio:>8.2} {paired:>12.2}  {low:>5.2}–{high:<5.2} {:>6} / {:<6}",
                 off_median, off_max, on_median, on_max, misses.0, misses.1
             );
         }
@@ -216,4 +245,20 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_interval_takes_the_sign_test_order_statistics() {
+        let values: Vec<f64> = (1..=30).map(f64::from).collect();
+        // P(Bin(30, ½) ≤ 9) = 2.1 % ≤ 2.5 % < P(≤ 10) = 4.9 %: the 10th smallest and largest.
+        assert_eq!(median_confidence_interval(&values), Some((10.0, 21.0)));
+        // Six values: P(≤ 0) = 1.6 %, so the interval is the whole range.
+        assert_eq!(median_confidence_interval(&values[..6]), Some((1.0, 6.0)));
+        // Five: even the extremes leave 2 × 3.1 % outside, so there is no 95 % interval.
+        assert_eq!(median_confidence_interval(&values[..5]), None);
+    }
 }
