@@ -217,6 +217,8 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
                     "ratio": ratio,
                     "paired_ratio": paired,
                     "paired_ratio_ci95": [low, high],
+                    "without_p99_us_by_pair": without.p99_us.get(name),
+                    "with_p99_us_by_pair": with.p99_us.get(name),
                     "deadline_misses_without": misses.0,
                     "deadline_misses_with": misses.1,
                 }),
