@@ -180,7 +180,7 @@ fn main() {
         options.rate_hz,
         options.seconds,
         options.step_us,
-        std::fs::read_to_string("/proc/thread-self/timerslack_ns")
+        std::fs::read_to_string("/proc/self/timerslack_ns")
             .unwrap_or_default()
             .trim()
     );

@@ -1,7 +1,7 @@
 //! iceoryx2 glue for the motm processes: a per-process [`Bus`] (one iceoryx2 node), typed
 //! [`Publisher`]/[`Subscriber`] ports over `motm-msgs` payloads with receive-side validation,
 //! a latest-value reader ([`Latest`]), per-process heartbeats, the standard [`ServiceLoop`]
-//! (interval timer or data events on a WaitSet, cycle statistics, deadline misses, connection
+//! (periodic timer or data events on a WaitSet, cycle statistics, deadline misses, connection
 //! refresh) and dead-node cleanup for supervisors.
 //!
 //! All ports use `ipc::Service`: they are not `Send` and stay on the thread that made them.

@@ -1,5 +1,7 @@
-//! The standard main loop of a motm process: wake on a WaitSet (interval timer or data
+//! The standard main loop of a motm process: wake on a WaitSet (periodic timer or data
 //! event), run one step, record the cycle, publish the heartbeat and refresh connections.
+//! The periodic timer is a `timerfd` by default (see [`crate::TickSource`] for why not the
+//! WaitSet's own interval).
 
 use std::time::Duration;
 
@@ -227,13 +229,16 @@ impl<'bus> ServiceLoop<'bus> {
                 })
             }
             TickSource::WaitsetInterval => {
-                let tick = waitset
-                    .attach_interval(self.config.period)
-                    .map_err(|e| BusError::Loop(format!("{e:?}")))?;
+                // The WaitSet starts its grid when the interval is attached: an origin taken
+                // just before is at most a few µs early, so a wake-up right after a tick is
+                // never attributed to the tick before it.
                 let schedule = Schedule {
                     origin_ns: monotonic_now_ns(),
                     period_ns,
                 };
+                let tick = waitset
+                    .attach_interval(self.config.period)
+                    .map_err(|e| BusError::Loop(format!("{e:?}")))?;
                 process_until_signalled(&waitset, |id| {
                     if id.has_event_from(&tick)
                         && self.cycle(Some(schedule), &mut step) == Flow::Stop
@@ -450,20 +455,40 @@ mod tests {
     }
 
     #[test]
-    fn periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+    fn periodic_loop_on_a_timerfd_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+        periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(TickSource::Timerfd);
+    }
+
+    #[test]
+    fn periodic_loop_on_a_waitset_interval_counts_slow_cycles_stops_on_request_and_says_goodbye()
+    {
+        periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(
+            TickSource::WaitsetInterval,
+        );
+    }
+
+    fn periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(source: TickSource) {
         let ipc = IpcConfig {
-            prefix: format!("motmt{}_loop_", std::process::id()),
+            prefix: format!("motmt{}_loop{}_", std::process::id(), source as u8),
         };
         {
             let bus = Bus::open_with("looper", &ipc).unwrap();
             let mut heartbeat =
                 Latest::<Heartbeat>::new(&bus, &services::heartbeat("looper"), &Qos::default())
                     .unwrap();
-            let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(200.0)).unwrap();
+            let config = LoopConfig {
+                tick_source: source,
+                ..LoopConfig::with_rate(200.0)
+            };
+            let mut service = ServiceLoop::new(&bus, config).unwrap();
             let mut seen = Vec::new();
+            let mut ticks = Vec::new();
             let exit = service
                 .run_periodic(|cycle| {
                     seen.push(cycle.cycle);
+                    let tick = cycle.tick_ns.unwrap();
+                    assert!(tick <= cycle.now_ns);
+                    ticks.push(tick);
                     // Cycles 2 and 5 run four periods: each is a deadline miss.
                     if cycle.cycle == 2 || cycle.cycle == 5 {
                         std::thread::sleep(Duration::from_millis(20));
@@ -477,6 +502,10 @@ mod tests {
                 .unwrap();
             assert_eq!(exit, LoopExit::Stopped);
             assert_eq!(seen, (0..10).collect::<Vec<_>>());
+            // Each cycle is released by a later tick of one 5 ms grid.
+            for pair in ticks.windows(2) {
+                assert!(pair[1] > pair[0] && (pair[1] - pair[0]) % (5 * MS) == 0);
+            }
             assert_eq!(service.stats().cycles(), 10);
             assert!(service.stats().deadline_misses() >= 2);
             assert!(service.stats().max_cycle_ns() >= 20 * MS);
