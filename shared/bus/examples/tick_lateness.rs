@@ -57,7 +57,11 @@ fn parse() -> Result<Options, String> {
         return Err("--rate and --seconds must be positive".into());
     }
     if options.sources.is_empty() {
-        options.sources = vec!["waitset-interval".into(), "timerfd".into(), "nanosleep".into()];
+        options.sources = vec![
+            "waitset-interval".into(),
+            "timerfd".into(),
+            "nanosleep".into(),
+        ];
     }
     Ok(options)
 }

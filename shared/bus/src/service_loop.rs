@@ -460,8 +460,7 @@ mod tests {
     }
 
     #[test]
-    fn periodic_loop_on_a_waitset_interval_counts_slow_cycles_stops_on_request_and_says_goodbye()
-    {
+    fn periodic_loop_on_a_waitset_interval_counts_slow_cycles_stops_on_request_and_says_goodbye() {
         periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(
             TickSource::WaitsetInterval,
         );

@@ -68,7 +68,9 @@ impl FromStr for TickSource {
         [Self::Timerfd, Self::WaitsetInterval]
             .into_iter()
             .find(|source| source.name() == s)
-            .ok_or_else(|| format!("unknown tick source '{s}' (expected timerfd or waitset-interval)"))
+            .ok_or_else(|| {
+                format!("unknown tick source '{s}' (expected timerfd or waitset-interval)")
+            })
     }
 }
 
@@ -176,7 +178,10 @@ mod tests {
             assert_eq!(source.name().parse::<TickSource>(), Ok(source));
         }
         let error = "epoll".parse::<TickSource>().unwrap_err();
-        assert!(error.contains("epoll") && error.contains("timerfd"), "{error}");
+        assert!(
+            error.contains("epoll") && error.contains("timerfd"),
+            "{error}"
+        );
         assert_eq!(TickSource::default(), TickSource::Timerfd);
     }
 
