@@ -1,7 +1,7 @@
 //! iceoryx2 glue for the motm processes: a per-process [`Bus`] (one iceoryx2 node), typed
 //! [`Publisher`]/[`Subscriber`] ports over `motm-msgs` payloads with receive-side validation,
 //! a latest-value reader ([`Latest`]), per-process heartbeats, the standard [`ServiceLoop`]
-//! (interval timer or data events on a WaitSet, cycle statistics, deadline misses, connection
+//! (periodic timer or data events on a WaitSet, cycle statistics, deadline misses, connection
 //! refresh) and dead-node cleanup for supervisors.
 //!
 //! All ports use `ipc::Service`: they are not `Send` and stay on the thread that made them.
@@ -40,6 +40,7 @@ mod process;
 mod service_loop;
 mod stats;
 mod systemd;
+mod tick;
 
 pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
 pub use clock::monotonic_now_ns;
@@ -49,6 +50,7 @@ pub use process::OwnedProcess;
 pub use service_loop::{CycleContext, Flow, LoopConfig, LoopExit, ServiceLoop};
 pub use stats::{CycleStats, percentile};
 pub use systemd::SystemdNotifier;
+pub use tick::{PeriodicTimer, TICK_SOURCE_ENV, TickSource};
 
 use std::cell::{Cell, RefCell};
 use std::rc::{Rc, Weak};

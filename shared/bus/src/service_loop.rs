@@ -1,5 +1,7 @@
-//! The standard main loop of a motm process: wake on a WaitSet (interval timer or data
+//! The standard main loop of a motm process: wake on a WaitSet (periodic timer or data
 //! event), run one step, record the cycle, publish the heartbeat and refresh connections.
+//! The periodic timer is a `timerfd` by default (see [`crate::TickSource`] for why not the
+//! WaitSet's own interval).
 
 use std::time::Duration;
 
@@ -8,7 +10,8 @@ use iceoryx2::waitset::WaitSetRunResult;
 use motm_msgs::ProcessState;
 
 use crate::{
-    Bus, BusError, CycleStats, HeartbeatPublisher, SystemdNotifier, Trigger, monotonic_now_ns,
+    Bus, BusError, CycleStats, HeartbeatPublisher, PeriodicTimer, SystemdNotifier, TickSource,
+    Trigger, monotonic_now_ns,
 };
 
 /// Timing of a [`ServiceLoop`].
@@ -27,6 +30,9 @@ pub struct LoopConfig {
     pub connection_refresh: Duration,
     /// Number of recent cycle times kept for percentiles (default 2000).
     pub stats_window: usize,
+    /// The timer of [`ServiceLoop::run_periodic`] (default [`TickSource::Timerfd`]; the
+    /// environment variable [`crate::TICK_SOURCE_ENV`] overrides it for a whole process).
+    pub tick_source: TickSource,
 }
 
 impl Default for LoopConfig {
@@ -37,6 +43,7 @@ impl Default for LoopConfig {
             heartbeat_period: Duration::from_millis(100),
             connection_refresh: Duration::from_millis(100),
             stats_window: 2000,
+            tick_source: TickSource::default(),
         }
     }
 }
@@ -65,6 +72,10 @@ pub struct CycleContext {
     pub cycle: u64,
     /// Time since the previous wake-up, ns (0 in the first cycle).
     pub since_last_ns: u64,
+    /// Monotonic time of the tick that released this cycle (the latest tick of the loop's
+    /// grid at or before the wake-up), ns; `None` in event-driven loops. `now_ns` minus this
+    /// is the wake-up lateness.
+    pub tick_ns: Option<u64>,
 }
 
 /// Whether the loop goes on after a step.
@@ -94,6 +105,14 @@ struct Schedule {
     period_ns: u64,
 }
 
+impl Schedule {
+    /// Index and time of the latest tick at or before `t_ns` (tick 0 before the origin).
+    fn tick_at(&self, t_ns: u64) -> (u64, u64) {
+        let index = t_ns.saturating_sub(self.origin_ns) / self.period_ns;
+        (index, self.origin_ns + index * self.period_ns)
+    }
+}
+
 /// The last cycle of a periodic loop, for spotting lost ticks.
 #[derive(Debug, Clone, Copy)]
 struct LastTick {
@@ -115,8 +134,7 @@ fn deadline_missed(
     let Some(s) = schedule else {
         return (end_ns - wake_ns > deadline_ns, None);
     };
-    let index = wake_ns.saturating_sub(s.origin_ns) / s.period_ns;
-    let release = s.origin_ns + index * s.period_ns;
+    let (index, release) = s.tick_at(wake_ns);
     let overran = end_ns - release.min(wake_ns) > deadline_ns;
     let lost_tick = last.is_some_and(|last| {
         index > last.index + 1 && last.end_ns <= s.origin_ns + (last.index + 1) * s.period_ns
@@ -172,30 +190,66 @@ impl<'bus> ServiceLoop<'bus> {
         &mut self.stats
     }
 
-    /// Runs `step` once per period on the WaitSet's interval timer until it returns
+    /// Runs `step` once per period on the configured [`TickSource`] until it returns
     /// [`Flow::Stop`] or SIGTERM/SIGINT arrives. The step reads the latest samples, computes
     /// and publishes; this loop records its time and handles heartbeats and reconnections.
+    /// Ticks that pass while a step runs (or while the process is stopped) are coalesced into
+    /// one cycle; the deadline rule counts them.
     pub fn run_periodic(
         &mut self,
         mut step: impl FnMut(&CycleContext) -> Flow,
     ) -> Result<LoopExit, BusError> {
+        let source = TickSource::from_env()
+            .map_err(BusError::Loop)?
+            .unwrap_or(self.config.tick_source);
         let waitset = Self::waitset()?;
-        let tick = waitset
-            .attach_interval(self.config.period)
-            .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         let period_ns = self.config.period.as_nanos() as u64;
-        let schedule = Schedule {
-            origin_ns: monotonic_now_ns(),
-            period_ns,
-        };
         let mut stopped = false;
-        let result = process_until_signalled(&waitset, |id| {
-            if id.has_event_from(&tick) && self.cycle(Some(schedule), &mut step) == Flow::Stop {
-                stopped = true;
-                return CallbackProgression::Stop;
+        let result = match source {
+            TickSource::Timerfd => {
+                let timer = PeriodicTimer::start(self.config.period)
+                    .map_err(|e| BusError::Loop(format!("timerfd: {e}")))?;
+                let tick = waitset
+                    .attach_notification(&timer)
+                    .map_err(|e| BusError::Loop(format!("{e:?}")))?;
+                let schedule = Schedule {
+                    origin_ns: timer.origin_ns(),
+                    period_ns,
+                };
+                process_until_signalled(&waitset, |id| {
+                    // A wake-up with no expiration (spurious) runs no cycle.
+                    if id.has_event_from(&tick)
+                        && timer.acknowledge() > 0
+                        && self.cycle(Some(schedule), &mut step) == Flow::Stop
+                    {
+                        stopped = true;
+                        return CallbackProgression::Stop;
+                    }
+                    CallbackProgression::Continue
+                })
             }
-            CallbackProgression::Continue
-        });
+            TickSource::WaitsetInterval => {
+                // The WaitSet starts its grid when the interval is attached: an origin taken
+                // just before is at most a few µs early, so a wake-up right after a tick is
+                // never attributed to the tick before it.
+                let schedule = Schedule {
+                    origin_ns: monotonic_now_ns(),
+                    period_ns,
+                };
+                let tick = waitset
+                    .attach_interval(self.config.period)
+                    .map_err(|e| BusError::Loop(format!("{e:?}")))?;
+                process_until_signalled(&waitset, |id| {
+                    if id.has_event_from(&tick)
+                        && self.cycle(Some(schedule), &mut step) == Flow::Stop
+                    {
+                        stopped = true;
+                        return CallbackProgression::Stop;
+                    }
+                    CallbackProgression::Continue
+                })
+            }
+        };
         self.finish(result, stopped, period_ns)
     }
 
@@ -255,6 +309,7 @@ impl<'bus> ServiceLoop<'bus> {
             now_ns: wake,
             cycle: self.stats.cycles(),
             since_last_ns,
+            tick_ns: schedule.map(|s| s.tick_at(wake).1),
         });
         let end = monotonic_now_ns();
         let (missed, tick) = deadline_missed(
@@ -400,20 +455,39 @@ mod tests {
     }
 
     #[test]
-    fn periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+    fn periodic_loop_on_a_timerfd_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+        periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(TickSource::Timerfd);
+    }
+
+    #[test]
+    fn periodic_loop_on_a_waitset_interval_counts_slow_cycles_stops_on_request_and_says_goodbye() {
+        periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(
+            TickSource::WaitsetInterval,
+        );
+    }
+
+    fn periodic_loop_counts_slow_cycles_stops_on_request_and_says_goodbye(source: TickSource) {
         let ipc = IpcConfig {
-            prefix: format!("motmt{}_loop_", std::process::id()),
+            prefix: format!("motmt{}_loop{}_", std::process::id(), source as u8),
         };
         {
             let bus = Bus::open_with("looper", &ipc).unwrap();
             let mut heartbeat =
                 Latest::<Heartbeat>::new(&bus, &services::heartbeat("looper"), &Qos::default())
                     .unwrap();
-            let mut service = ServiceLoop::new(&bus, LoopConfig::with_rate(200.0)).unwrap();
+            let config = LoopConfig {
+                tick_source: source,
+                ..LoopConfig::with_rate(200.0)
+            };
+            let mut service = ServiceLoop::new(&bus, config).unwrap();
             let mut seen = Vec::new();
+            let mut ticks = Vec::new();
             let exit = service
                 .run_periodic(|cycle| {
                     seen.push(cycle.cycle);
+                    let tick = cycle.tick_ns.unwrap();
+                    assert!(tick <= cycle.now_ns);
+                    ticks.push(tick);
                     // Cycles 2 and 5 run four periods: each is a deadline miss.
                     if cycle.cycle == 2 || cycle.cycle == 5 {
                         std::thread::sleep(Duration::from_millis(20));
@@ -427,6 +501,10 @@ mod tests {
                 .unwrap();
             assert_eq!(exit, LoopExit::Stopped);
             assert_eq!(seen, (0..10).collect::<Vec<_>>());
+            // Each cycle is released by a later tick of one 5 ms grid.
+            for pair in ticks.windows(2) {
+                assert!(pair[1] > pair[0] && (pair[1] - pair[0]) % (5 * MS) == 0);
+            }
             assert_eq!(service.stats().cycles(), 10);
             assert!(service.stats().deadline_misses() >= 2);
             assert!(service.stats().max_cycle_ns() >= 20 * MS);
