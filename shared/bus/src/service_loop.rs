@@ -202,55 +202,66 @@ impl<'bus> ServiceLoop<'bus> {
         let source = TickSource::from_env()
             .map_err(BusError::Loop)?
             .unwrap_or(self.config.tick_source);
+        let timer = match source {
+            TickSource::Timerfd => Some(
+                PeriodicTimer::start(self.config.period)
+                    .map_err(|e| BusError::Loop(format!("timerfd: {e}")))?,
+            ),
+            TickSource::WaitsetInterval => None,
+        };
         let waitset = Self::waitset()?;
-        let period_ns = self.config.period.as_nanos() as u64;
-        let mut stopped = false;
-        let result = match source {
-            TickSource::Timerfd => {
-                let timer = PeriodicTimer::start(self.config.period)
-                    .map_err(|e| BusError::Loop(format!("timerfd: {e}")))?;
+        // The WaitSet starts its interval's grid when the interval is attached: an origin
+        // taken just before is at most a few µs early, so a wake-up right after a tick is never
+        // attributed to the tick before it. A timerfd's grid is its own.
+        let schedule = Schedule {
+            origin_ns: timer
+                .as_ref()
+                .map_or_else(monotonic_now_ns, |t| t.origin_ns()),
+            period_ns: self.config.period.as_nanos() as u64,
+        };
+        let (result, stopped) = match &timer {
+            Some(timer) => {
                 let tick = waitset
-                    .attach_notification(&timer)
+                    .attach_notification(timer)
                     .map_err(|e| BusError::Loop(format!("{e:?}")))?;
-                let schedule = Schedule {
-                    origin_ns: timer.origin_ns(),
-                    period_ns,
-                };
-                process_until_signalled(&waitset, |id| {
-                    // A wake-up with no expiration (spurious) runs no cycle.
-                    if id.has_event_from(&tick)
-                        && timer.acknowledge() > 0
-                        && self.cycle(Some(schedule), &mut step) == Flow::Stop
-                    {
-                        stopped = true;
-                        return CallbackProgression::Stop;
-                    }
-                    CallbackProgression::Continue
-                })
+                self.process_ticks(&waitset, &tick, Some(timer), schedule, &mut step)
             }
-            TickSource::WaitsetInterval => {
-                // The WaitSet starts its grid when the interval is attached: an origin taken
-                // just before is at most a few µs early, so a wake-up right after a tick is
-                // never attributed to the tick before it.
-                let schedule = Schedule {
-                    origin_ns: monotonic_now_ns(),
-                    period_ns,
-                };
+            None => {
                 let tick = waitset
                     .attach_interval(self.config.period)
                     .map_err(|e| BusError::Loop(format!("{e:?}")))?;
-                process_until_signalled(&waitset, |id| {
-                    if id.has_event_from(&tick)
-                        && self.cycle(Some(schedule), &mut step) == Flow::Stop
-                    {
-                        stopped = true;
-                        return CallbackProgression::Stop;
-                    }
-                    CallbackProgression::Continue
-                })
+                self.process_ticks(&waitset, &tick, None, schedule, &mut step)
             }
         };
-        self.finish(result, stopped, period_ns)
+        self.finish(result, stopped, schedule.period_ns)
+    }
+
+    /// Runs a cycle on each wake-up from `tick` (for a `timer`, only when a tick expired: a
+    /// spurious wake-up runs none) until `step` stops or SIGTERM/SIGINT arrives; also says
+    /// whether `step` stopped it.
+    fn process_ticks(
+        &mut self,
+        waitset: &WaitSet<ipc::Service>,
+        tick: &WaitSetGuard<'_, '_, ipc::Service>,
+        timer: Option<&PeriodicTimer>,
+        schedule: Schedule,
+        step: &mut impl FnMut(&CycleContext) -> Flow,
+    ) -> (
+        Result<WaitSetRunResult, iceoryx2::waitset::WaitSetRunError>,
+        bool,
+    ) {
+        let mut stopped = false;
+        let result = process_until_signalled(waitset, |id| {
+            if id.has_event_from(tick)
+                && timer.is_none_or(|t| t.acknowledge() > 0)
+                && self.cycle(Some(schedule), step) == Flow::Stop
+            {
+                stopped = true;
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        (result, stopped)
     }
 
     /// Runs `step` each time a sample is announced on `trigger` (see
