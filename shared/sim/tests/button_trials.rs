@@ -2,20 +2,12 @@
 //! drift included): the cube is picked and placed, then the button is pressed on the move,
 //! with the tool point on the cap, and the base touches nothing.
 
-use std::path::{Path, PathBuf};
+mod support;
 
-use motm_core::Robot;
-use motm_sim::Scenario;
 use motm_sim::experiment::{CYCLE_COLUMNS, Method};
 use motm_sim::objects::ObjectConfig;
-use motm_sim::runner::{RunnerConfig, run_trial};
-
-/// Seeds each scenario is run with.
-const SEEDS: [u64; 3] = [1, 2, 3];
-
-fn config_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
-}
+use motm_sim::runner::RunnerConfig;
+use support::{load_scenario, successful_trials};
 
 fn column(name: &str) -> usize {
     CYCLE_COLUMNS
@@ -29,28 +21,19 @@ fn column(name: &str) -> usize {
 /// last cycle the true tool point is on the cap and pushed down by at least the button's
 /// switching travel.
 fn assert_button_pressed(name: &str) {
-    let dir = config_dir();
-    let scenario = Scenario::from_file(&dir.join("scenarios").join(format!("{name}.toml")))
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (robot, scenario) = load_scenario(name);
     let [button] = scenario.buttons.as_slice() else {
         panic!("{name}: expected one button");
     };
-    let robot = Robot::load(&dir, &scenario.robot).unwrap();
     let config = RunnerConfig {
         record_cycles: true,
         ..RunnerConfig::default()
     };
     let cap_radius = ObjectConfig::default().button_radius;
     let (x, y, z) = (column("tool_x"), column("tool_y"), column("tool_z"));
-    for seed in SEEDS {
-        let (result, trace) =
-            run_trial(&robot, &scenario, Method::Motm, seed, &config, true).unwrap();
-        assert!(
-            result.success,
-            "{name} seed {seed}: {:?} after {:.2} s",
-            result.failure, result.sim_time_s
-        );
-        assert_eq!(result.round_trips_s.len(), 1, "{name} seed {seed}");
+    for (seed, result, trace) in
+        successful_trials(name, &robot, &scenario, Method::Motm, &config, true)
+    {
         let trace = trace.expect("a trace was asked for");
         let last = trace.cycles.last().expect("at least one cycle");
         let [bx, by, bz] = button.position;
