@@ -128,36 +128,43 @@ fn selector_uses_perception_only_for_the_current_pick_or_press() {
     let chosen = selector.select_with_source(&place, 1_020 * MS, Some(&seen));
     assert_eq!(chosen.target, TargetEstimate::fixed(place.target));
     assert_eq!(chosen.image_stamp_ns, None);
+    // A later task of the mission (its index 2 or 3 of 4) at `target`: the mission's target
+    // while perception's latest estimate is `seen` (made before the task started), perception's
+    // once it publishes one stamped `fresh_ms`.
+    let mut takes_only_a_fresh_estimate =
+        |kind: TaskKind, task_index: usize, target: Vector3<f64>, asked_ms: u64, fresh_ms: u64| {
+            let mut task = view(task_index, kind, Phase::Reach);
+            task.task_count = 4;
+            task.target = target;
+            assert_eq!(
+                selector.select(&task, asked_ms * MS, Some(&seen)),
+                TargetEstimate::fixed(target)
+            );
+            let fresh = PerceivedTarget {
+                stamp_ns: fresh_ms * MS,
+                ..seen
+            };
+            assert_eq!(
+                selector.select(&task, (fresh_ms + 10) * MS, Some(&fresh)),
+                fresh.estimate
+            );
+        };
     // A press: perception's estimate of the button cap once it is fresh (the mission's button
     // position is in the world frame, the tools' poses in the drifting odometry frame).
-    let mut press = view(3, TaskKind::PressButton, Phase::Reach);
-    press.task_count = 4;
-    press.target = Vector3::new(6.0, 0.0, 0.5);
-    assert_eq!(
-        selector.select(&press, 1_030 * MS, Some(&seen)),
-        TargetEstimate::fixed(press.target)
-    );
-    let cap = PerceivedTarget {
-        stamp_ns: 1_040 * MS,
-        ..seen
-    };
-    assert_eq!(
-        selector.select(&press, 1_050 * MS, Some(&cap)),
-        cap.estimate
+    takes_only_a_fresh_estimate(
+        TaskKind::PressButton,
+        3,
+        Vector3::new(6.0, 0.0, 0.5),
+        1_030,
+        1_040,
     );
     // A later pick ignores the previous pick's estimate until perception publishes anew.
-    let mut next_pick = view(2, TaskKind::Pick, Phase::Reach);
-    next_pick.task_count = 4;
-    next_pick.target = Vector3::new(6.0, 1.0, 0.45);
-    let chosen = selector.select(&next_pick, 5_000 * MS, Some(&seen));
-    assert_eq!(chosen, TargetEstimate::fixed(next_pick.target));
-    let fresh = PerceivedTarget {
-        stamp_ns: 5_030 * MS,
-        ..seen
-    };
-    assert_eq!(
-        selector.select(&next_pick, 5_040 * MS, Some(&fresh)),
-        fresh.estimate
+    takes_only_a_fresh_estimate(
+        TaskKind::Pick,
+        2,
+        Vector3::new(6.0, 1.0, 0.45),
+        5_000,
+        5_030,
     );
 }
 
