@@ -199,8 +199,8 @@ fn print_summary(without: &Side, with: &Side, args: &LoggerBenchArgs) -> Result<
             continue;
         };
         let ratio = on_median / off_median;
-        let ratios = pair_ratios(without, with, name).unwrap_or_default();
-        let paired = median(&mut ratios.clone()).unwrap_or(f64::NAN);
+        let mut ratios = pair_ratios(without, with, name).unwrap_or_default();
+        let paired = median(&mut ratios).unwrap_or(f64::NAN);
         let (low, high) = median_confidence_interval(&ratios).unwrap_or((f64::NAN, f64::NAN));
         let misses = (
             without.deadline_misses.get(name).copied().unwrap_or(0),
