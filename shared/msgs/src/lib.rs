@@ -9,9 +9,11 @@
 
 mod messages;
 pub mod services;
+mod topic;
 mod validate;
 
 pub use messages::*;
+pub use topic::{Topic, TopicSpec, topics};
 pub use validate::{RejectReason, Rejection};
 
 use iceoryx2::prelude::ZeroCopySend;

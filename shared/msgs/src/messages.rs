@@ -706,6 +706,10 @@ pub struct QpStatus {
     /// when the target was not a perception estimate): the end-to-end latency of the command
     /// is `header.stamp_ns - image_stamp_ns`.
     pub image_stamp_ns: u64,
+    /// The world twist that was resolved, after the twist rate limit
+    /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s: the tool's commanded motion, which the reacher
+    /// feeds back as its tool state (all zero when the command was a stop).
+    pub twist: [f64; 6],
 }
 
 message!(QpStatus, |m, c| {
@@ -718,6 +722,14 @@ message!(QpStatus, |m, c| {
             None,
             RejectReason::Inconsistent("image stamp after the status's own stamp"),
         ));
+    }
+    for i in 0..6 {
+        let max = if i < 3 {
+            envelope::EE_SPEED
+        } else {
+            envelope::ANGULAR_SPEED
+        };
+        c.in_range_at("twist", Some(i), m.twist[i], -max, max)?;
     }
     Ok(())
 });

@@ -1,0 +1,320 @@
+//! The in-memory bus of the in-process runtime: the same messages as iceoryx2 carries, with
+//! the same receive-side validation, in simulated time, and a delay per edge.
+//!
+//! Semantics (those of the deployed services' iceoryx2 settings):
+//! - a reader sees the samples published since its previous read, oldest first; one that
+//!   first reads after samples were published gets the newest one (history of one);
+//! - a sample published at `t` on an edge with delay `d` is visible to that reader from
+//!   `t + d` on;
+//! - every sample is validated on receipt ([`Message::validate`]: schema, stamp not in the
+//!   future, sequence moving forward, fields); a rejected one is dropped and counted.
+
+use std::any::Any;
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+
+use motm_msgs::{Message, Rejection, Topic};
+
+use crate::task::{Sink, Source, boxed_copy};
+
+/// Identifies one reader of the bus (a scheduled task).
+pub type ReaderId = usize;
+
+/// One reader's place in a channel.
+#[derive(Debug, Clone, Copy)]
+struct Cursor {
+    next: u64,
+    last_seq: Option<u64>,
+}
+
+/// The samples of one topic.
+struct Channel<T> {
+    /// (publication time, index, sample), oldest first.
+    samples: VecDeque<(u64, u64, Arc<T>)>,
+    next_index: u64,
+    next_seq: u64,
+    cursors: HashMap<ReaderId, Cursor>,
+}
+
+impl<T> Channel<T> {
+    fn new() -> Self {
+        Self {
+            samples: VecDeque::new(),
+            next_index: 0,
+            next_seq: 0,
+            cursors: HashMap::new(),
+        }
+    }
+
+    /// Drops the samples every reader has passed (keeping the newest for late readers).
+    fn trim(&mut self) {
+        let oldest_needed = self
+            .cursors
+            .values()
+            .map(|c| c.next)
+            .min()
+            .unwrap_or(self.next_index)
+            .min(self.next_index.saturating_sub(1));
+        while self
+            .samples
+            .front()
+            .is_some_and(|(_, index, _)| *index < oldest_needed)
+        {
+            self.samples.pop_front();
+        }
+    }
+}
+
+/// The in-memory bus.
+#[derive(Default)]
+pub struct MemBus {
+    now_ns: u64,
+    channels: HashMap<&'static str, Box<dyn AnyChannel>>,
+    delays: HashMap<(&'static str, ReaderId), u64>,
+    rejected: u64,
+    last_rejection: Option<Rejection>,
+}
+
+impl MemBus {
+    /// An empty bus at time zero.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The bus's simulated monotonic time, ns.
+    pub fn now_ns(&self) -> u64 {
+        self.now_ns
+    }
+
+    /// Sets the simulated time (it never goes back).
+    pub fn set_now_ns(&mut self, now_ns: u64) {
+        self.now_ns = self.now_ns.max(now_ns);
+    }
+
+    /// Sets the delay of the edge from `topic` to `reader`, ns.
+    pub fn set_delay(&mut self, topic: &'static str, reader: ReaderId, delay_ns: u64) {
+        self.delays.insert((topic, reader), delay_ns);
+    }
+
+    /// Samples dropped by validation so far.
+    pub fn rejected(&self) -> u64 {
+        self.rejected
+    }
+
+    /// Why the last sample was dropped.
+    pub fn last_rejection(&self) -> Option<&Rejection> {
+        self.last_rejection.as_ref()
+    }
+
+    fn channel<T: Message>(&mut self, topic: Topic<T>) -> &mut Channel<T> {
+        self.channels
+            .entry(topic.name())
+            .or_insert_with(|| Box::new(Channel::<T>::new()))
+            .as_any_mut()
+            .downcast_mut::<Channel<T>>()
+            .unwrap_or_else(|| panic!("topic {topic:?} used with two payload types"))
+    }
+
+    /// Publishes `sample` now: the bus assigns the sequence number and stamps a zero stamp
+    /// with the current time.
+    pub fn publish<T: Message>(&mut self, topic: Topic<T>, sample: Arc<T>) {
+        let now = self.now_ns;
+        let channel = self.channel(topic);
+        let mut sample = sample;
+        let header = Arc::make_mut(&mut sample).header_mut();
+        header.seq = channel.next_seq;
+        if header.stamp_ns == 0 {
+            header.stamp_ns = now;
+        }
+        channel.next_seq += 1;
+        let index = channel.next_index;
+        channel.next_index += 1;
+        channel.samples.push_back((now, index, sample));
+        channel.trim();
+    }
+
+    /// Whether `reader` has an unread sample on `topic` that is visible now.
+    pub fn has_new(&self, topic: &'static str, reader: ReaderId) -> bool {
+        let delay = self.delays.get(&(topic, reader)).copied().unwrap_or(0);
+        let Some(channel) = self.channels.get(topic) else {
+            return false;
+        };
+        channel.has_new(reader, self.now_ns, delay)
+    }
+
+    /// The visible samples `reader` has not read yet on `topic`, validated, oldest first.
+    pub fn read<T: Message>(&mut self, topic: Topic<T>, reader: ReaderId) -> Vec<Arc<T>> {
+        let now = self.now_ns;
+        let delay = self
+            .delays
+            .get(&(topic.name(), reader))
+            .copied()
+            .unwrap_or(0);
+        let channel = self.channel(topic);
+        let first_unread = channel.next_index.saturating_sub(1);
+        let cursor = *channel.cursors.entry(reader).or_insert(Cursor {
+            next: first_unread,
+            last_seq: None,
+        });
+        let mut next = cursor.next;
+        let mut last_seq = cursor.last_seq;
+        let mut out = Vec::new();
+        let mut rejections = Vec::new();
+        for (published, index, sample) in &channel.samples {
+            if *index < next {
+                continue;
+            }
+            if published + delay > now {
+                break;
+            }
+            next = index + 1;
+            match sample.validate(now, last_seq) {
+                Ok(()) => {
+                    last_seq = Some(sample.header().seq);
+                    out.push(Arc::clone(sample));
+                }
+                Err(rejection) => rejections.push(rejection),
+            }
+        }
+        channel.cursors.insert(reader, Cursor { next, last_seq });
+        channel.trim();
+        self.rejected += rejections.len() as u64;
+        if let Some(last) = rejections.pop() {
+            self.last_rejection = Some(last);
+        }
+        out
+    }
+
+    /// The bus as `reader`'s [`Source`] and as a [`Sink`].
+    pub fn port(&mut self, reader: ReaderId) -> MemPort<'_> {
+        MemPort { bus: self, reader }
+    }
+}
+
+/// The untyped part of a channel.
+trait AnyChannel: Any {
+    /// Whether `reader` has an unread sample visible at `now` through an edge delay `delay`.
+    fn has_new(&self, reader: ReaderId, now: u64, delay: u64) -> bool;
+    /// The channel as `Any`, to get the typed channel back.
+    fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+impl<T: 'static> AnyChannel for Channel<T> {
+    fn has_new(&self, reader: ReaderId, now: u64, delay: u64) -> bool {
+        let next = self
+            .cursors
+            .get(&reader)
+            .map_or(self.next_index.saturating_sub(1), |c| c.next);
+        self.samples
+            .iter()
+            .rev()
+            .take_while(|(_, index, _)| *index >= next)
+            .any(|(published, _, _)| published + delay <= now)
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn Any {
+        self
+    }
+}
+
+/// The bus seen by one reader: a [`Source`] and a [`Sink`].
+pub struct MemPort<'a> {
+    bus: &'a mut MemBus,
+    reader: ReaderId,
+}
+
+impl Source for MemPort<'_> {
+    fn latest<T: Message>(&mut self, topic: Topic<T>, slot: &mut Option<T>) {
+        if let Some(newest) = self.bus.read(topic, self.reader).pop() {
+            *slot = Some(*newest);
+        }
+    }
+
+    fn latest_shared<T: Message>(&mut self, topic: Topic<T>, slot: &mut Option<Arc<T>>) {
+        if let Some(newest) = self.bus.read(topic, self.reader).pop() {
+            *slot = Some(newest);
+        }
+    }
+
+    fn queue<T: Message>(&mut self, topic: Topic<T>, out: &mut Vec<T>) {
+        out.extend(self.bus.read(topic, self.reader).iter().map(|s| **s));
+    }
+}
+
+impl Sink for MemPort<'_> {
+    fn publish<T: Message>(&mut self, topic: Topic<T>, message: &T) {
+        self.bus.publish(topic, Arc::from(boxed_copy(message)));
+    }
+
+    fn publish_shared<T: Message>(&mut self, topic: Topic<T>, message: Arc<T>) {
+        self.bus.publish(topic, message);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use motm_msgs::{JointState, topics};
+
+    fn joint(value: f64) -> Arc<JointState> {
+        let mut m = JointState::zeroed();
+        m.joint_count = 1;
+        m.position[0] = value;
+        Arc::new(m)
+    }
+
+    #[test]
+    fn a_reader_sees_samples_in_order_once_the_edge_delay_has_passed() {
+        let mut bus = MemBus::new();
+        let topic = topics::ARM_JOINT_STATE;
+        bus.set_delay(topic.name(), 1, 2_000);
+        // Reader 0 registers before anything is published.
+        assert!(bus.read(topic, 0).is_empty());
+        assert!(bus.read(topic, 1).is_empty());
+        bus.set_now_ns(1_000);
+        bus.publish(topic, joint(1.0));
+        bus.publish(topic, joint(2.0));
+        let seen: Vec<f64> = bus.read(topic, 0).iter().map(|m| m.position[0]).collect();
+        assert_eq!(seen, [1.0, 2.0]);
+        assert!(!bus.has_new(topic.name(), 1));
+        assert!(bus.read(topic, 1).is_empty());
+        bus.set_now_ns(3_000);
+        assert!(bus.has_new(topic.name(), 1));
+        assert_eq!(bus.read(topic, 1).len(), 2);
+        assert!(bus.read(topic, 0).is_empty(), "read once");
+        // Sequence numbers and stamps were assigned by the bus.
+        bus.publish(topic, joint(3.0));
+        let third = bus.read(topic, 0);
+        assert_eq!((third[0].header.seq, third[0].header.stamp_ns), (2, 3_000));
+    }
+
+    #[test]
+    fn a_late_reader_gets_the_newest_sample_only() {
+        let mut bus = MemBus::new();
+        let topic = topics::ARM_JOINT_STATE;
+        for v in [1.0, 2.0, 3.0] {
+            bus.publish(topic, joint(v));
+        }
+        let seen = bus.read(topic, 7);
+        assert_eq!(seen.len(), 1);
+        assert_eq!(seen[0].position[0], 3.0);
+    }
+
+    #[test]
+    fn an_invalid_sample_is_dropped_and_counted() {
+        let mut bus = MemBus::new();
+        let topic = topics::ARM_JOINT_STATE;
+        assert!(bus.read(topic, 0).is_empty());
+        bus.publish(topic, joint(f64::NAN));
+        bus.publish(topic, joint(0.5));
+        let seen = bus.read(topic, 0);
+        assert_eq!(seen.len(), 1);
+        assert_eq!(seen[0].position[0], 0.5);
+        assert_eq!(bus.rejected(), 1);
+        let why = bus
+            .last_rejection()
+            .map(ToString::to_string)
+            .unwrap_or_default();
+        assert!(why.contains("position"), "{why}");
+    }
+}

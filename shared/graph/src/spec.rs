@@ -1,0 +1,379 @@
+//! The graph as data: every task of the stack, the typed topics it reads and writes, its rate
+//! and its trigger. The supervisor's process list, the logger's taps, the fault-injection
+//! targets, the systemd units' `Wants=`, the end-to-end process list and `motm status` are
+//! derived from [`GRAPH`]; each task type checks its own ports against its row in a test.
+
+use motm_msgs::TopicSpec;
+use motm_msgs::topics as t;
+
+/// How often a task runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Rate {
+    /// At the stack's control rate (`control_rate_hz`, 200 Hz by default).
+    Control,
+    /// At a fixed rate of its own, Hz (the stack config may override it).
+    Hz(f64),
+}
+
+impl Rate {
+    /// The rate in Hz for a stack whose control rate is `control_rate_hz`.
+    pub fn hz(&self, control_rate_hz: f64) -> f64 {
+        match *self {
+            Self::Control => control_rate_hz,
+            Self::Hz(hz) => hz,
+        }
+    }
+}
+
+/// What makes a task run a cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Trigger {
+    /// Its own timer, at its rate.
+    Timer,
+    /// The arrival of a sample on one of these inputs, or its own timer when nothing arrived
+    /// for a whole period (so that a stalled upstream still gets a cycle that acts on it).
+    Arrival(&'static [TopicSpec]),
+}
+
+/// Where a task runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Host {
+    /// Its own process, of the task's name.
+    Process,
+    /// Inside the supervisor process (the mission task).
+    Supervisor,
+}
+
+/// One row of the graph table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaskSpec {
+    /// Task name, which is also its process, binary and heartbeat name.
+    pub name: &'static str,
+    /// The topics it reads.
+    pub inputs: &'static [TopicSpec],
+    /// The topics it publishes.
+    pub outputs: &'static [TopicSpec],
+    /// How often it runs.
+    pub rate: Rate,
+    /// What makes it run.
+    pub trigger: Trigger,
+    /// Whether it is on the control path: the watchdog safe-stops when its heartbeat goes
+    /// stale or it misses deadlines.
+    pub control_path: bool,
+    /// Whether it exists only in simulation (sim-world).
+    pub sim_only: bool,
+    /// Where it runs.
+    pub host: Host,
+}
+
+impl TaskSpec {
+    /// Whether the task reads `topic`.
+    pub fn reads(&self, topic: &str) -> bool {
+        self.inputs.iter().any(|s| s.name == topic)
+    }
+
+    /// Whether the task publishes `topic`.
+    pub fn writes(&self, topic: &str) -> bool {
+        self.outputs.iter().any(|s| s.name == topic)
+    }
+
+    /// Whether the task runs as a process of its own (everything but the mission task).
+    pub fn is_process(&self) -> bool {
+        self.host == Host::Process
+    }
+}
+
+/// The simulated hardware.
+pub const SIM_WORLD: TaskSpec = TaskSpec {
+    name: "sim-world",
+    inputs: &[
+        t::HW_ARM_COMMAND.spec(),
+        t::HW_BASE_COMMAND.spec(),
+        t::HW_GRIPPER_COMMAND.spec(),
+    ],
+    outputs: &[
+        t::HW_ARM_STATE.spec(),
+        t::HW_BASE_STATE.spec(),
+        t::HW_GRIPPER_STATE.spec(),
+        t::CAMERA_IMAGE.spec(),
+        t::SIM_TRUTH.spec(),
+    ],
+    rate: Rate::Hz(1000.0),
+    trigger: Trigger::Timer,
+    control_path: false,
+    sim_only: true,
+    host: Host::Process,
+};
+
+/// The arm driver.
+pub const PANDA_DRIVER: TaskSpec = TaskSpec {
+    name: "panda-driver",
+    inputs: &[
+        t::ARM_VELOCITY_COMMAND.spec(),
+        t::ARM_GRIPPER_COMMAND.spec(),
+        t::CONTROL_ACTIVE_CONTROLLER.spec(),
+        t::SAFETY_SAFE_STOP.spec(),
+        t::HW_ARM_STATE.spec(),
+        t::HW_GRIPPER_STATE.spec(),
+    ],
+    outputs: &[
+        t::HW_ARM_COMMAND.spec(),
+        t::HW_GRIPPER_COMMAND.spec(),
+        t::ARM_JOINT_STATE.spec(),
+        t::ARM_GRIPPER_STATE.spec(),
+        t::ARM_DRIVER_STATUS.spec(),
+    ],
+    rate: Rate::Hz(1000.0),
+    trigger: Trigger::Timer,
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The base driver.
+pub const LD60_DRIVER: TaskSpec = TaskSpec {
+    name: "ld60-driver",
+    inputs: &[
+        t::BASE_VELOCITY_COMMAND.spec(),
+        t::SAFETY_SAFE_STOP.spec(),
+        t::HW_BASE_STATE.spec(),
+    ],
+    outputs: &[
+        t::HW_BASE_COMMAND.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::BASE_DRIVER_STATUS.spec(),
+    ],
+    rate: Rate::Hz(50.0),
+    trigger: Trigger::Timer,
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// Perception of the current pick's cube or press's button.
+pub const PERCEPTION: TaskSpec = TaskSpec {
+    name: "perception",
+    inputs: &[
+        t::MISSION_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::ARM_JOINT_STATE.spec(),
+        t::CAMERA_IMAGE.spec(),
+    ],
+    outputs: &[t::PERCEPTION_TARGET.spec()],
+    rate: Rate::Control,
+    trigger: Trigger::Arrival(&[t::CAMERA_IMAGE.spec()]),
+    control_path: false,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The MotM base controller.
+pub const BASE_PLANNER: TaskSpec = TaskSpec {
+    name: "base-planner",
+    inputs: &[
+        t::MISSION_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::PERCEPTION_TARGET.spec(),
+    ],
+    outputs: &[t::BASE_VELOCITY_TARGET.spec(), t::BASE_PLAN.spec()],
+    rate: Rate::Control,
+    trigger: Trigger::Timer,
+    control_path: false,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The reach-phase controller.
+pub const REACHER: TaskSpec = TaskSpec {
+    name: "reacher",
+    inputs: &[
+        t::MISSION_STATE.spec(),
+        t::ARM_JOINT_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::PERCEPTION_TARGET.spec(),
+        t::BASE_PLAN.spec(),
+        t::BASE_VELOCITY_TARGET.spec(),
+        t::CONTROL_QP_STATUS.spec(),
+    ],
+    outputs: &[t::CONTROL_REACH_TWIST.spec()],
+    rate: Rate::Control,
+    trigger: Trigger::Arrival(&[t::PERCEPTION_TARGET.spec()]),
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The hot-swappable final-phase task controller.
+pub const FINAL_PHASE: TaskSpec = TaskSpec {
+    name: "final-phase",
+    inputs: &[
+        t::MISSION_STATE.spec(),
+        t::ARM_JOINT_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::PERCEPTION_TARGET.spec(),
+        t::ARM_GRIPPER_STATE.spec(),
+    ],
+    outputs: &[t::CONTROL_FINAL_TWIST.spec(), t::ARM_GRIPPER_COMMAND.spec()],
+    rate: Rate::Control,
+    trigger: Trigger::Arrival(&[t::PERCEPTION_TARGET.spec()]),
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The redundancy-resolution QP.
+pub const QP_RESOLVER: TaskSpec = TaskSpec {
+    name: "qp-resolver",
+    inputs: &[
+        t::MISSION_STATE.spec(),
+        t::ARM_JOINT_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::PERCEPTION_TARGET.spec(),
+        t::CONTROL_REACH_TWIST.spec(),
+        t::CONTROL_FINAL_TWIST.spec(),
+        t::CONTROL_ACTIVE_CONTROLLER.spec(),
+        t::BASE_VELOCITY_TARGET.spec(),
+    ],
+    outputs: &[
+        t::ARM_VELOCITY_COMMAND.spec(),
+        t::BASE_VELOCITY_COMMAND.spec(),
+        t::CONTROL_QP_STATUS.spec(),
+    ],
+    rate: Rate::Control,
+    trigger: Trigger::Arrival(&[t::CONTROL_REACH_TWIST.spec(), t::CONTROL_FINAL_TWIST.spec()]),
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The watchdog (it also reads every process's heartbeat).
+pub const WATCHDOG: TaskSpec = TaskSpec {
+    name: "watchdog",
+    inputs: &[
+        t::ARM_VELOCITY_COMMAND.spec(),
+        t::BASE_VELOCITY_COMMAND.spec(),
+    ],
+    outputs: &[t::SAFETY_SAFE_STOP.spec()],
+    rate: Rate::Hz(1000.0),
+    trigger: Trigger::Timer,
+    control_path: false,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The supervisor's mission task.
+pub const MISSION: TaskSpec = TaskSpec {
+    name: "mission",
+    inputs: &[
+        t::ARM_JOINT_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::PERCEPTION_TARGET.spec(),
+        t::CONTROL_FINAL_TWIST.spec(),
+        t::CONTROL_ACTIVE_CONTROLLER.spec(),
+    ],
+    outputs: &[t::MISSION_STATE.spec()],
+    rate: Rate::Control,
+    trigger: Trigger::Timer,
+    control_path: false,
+    sim_only: false,
+    host: Host::Supervisor,
+};
+
+/// Every task of the stack, in start order (upstream first): the one table the rest derives
+/// from.
+pub const GRAPH: &[TaskSpec] = &[
+    SIM_WORLD,
+    PANDA_DRIVER,
+    LD60_DRIVER,
+    PERCEPTION,
+    BASE_PLANNER,
+    REACHER,
+    FINAL_PHASE,
+    QP_RESOLVER,
+    WATCHDOG,
+    MISSION,
+];
+
+/// Topics the supervisor publishes itself, outside any task: the hot swap's active-controller
+/// id and the process table.
+pub const SUPERVISOR_TOPICS: &[TopicSpec] = &[
+    t::CONTROL_ACTIVE_CONTROLLER.spec(),
+    t::SUPERVISOR_STATUS.spec(),
+];
+
+/// The row of task `name`.
+pub fn task(name: &str) -> Option<&'static TaskSpec> {
+    GRAPH.iter().find(|t| t.name == name)
+}
+
+/// The tasks that run as processes of their own, in start order.
+pub fn processes() -> impl Iterator<Item = &'static TaskSpec> {
+    GRAPH.iter().filter(|t| t.is_process())
+}
+
+/// Every topic some task or the supervisor publishes, once each, in table order (the logger's
+/// taps).
+pub fn published_topics() -> Vec<TopicSpec> {
+    let mut out: Vec<TopicSpec> = SUPERVISOR_TOPICS.to_vec();
+    for spec in GRAPH {
+        for topic in spec.outputs {
+            if !out.contains(topic) {
+                out.push(*topic);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_input_is_published_by_some_task_and_names_are_unique() {
+        let published = published_topics();
+        for spec in GRAPH {
+            for input in spec.inputs {
+                assert!(
+                    published.contains(input),
+                    "{} reads {} which no task publishes",
+                    spec.name,
+                    input.name
+                );
+            }
+            if let Trigger::Arrival(topics) = spec.trigger {
+                for topic in topics {
+                    assert!(
+                        spec.reads(topic.name),
+                        "{} triggers on {}",
+                        spec.name,
+                        topic.name
+                    );
+                }
+            }
+        }
+        let mut names: Vec<&str> = GRAPH.iter().map(|t| t.name).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), GRAPH.len());
+    }
+
+    #[test]
+    fn a_topic_has_one_type_everywhere() {
+        for a in GRAPH.iter().flat_map(|t| t.inputs.iter().chain(t.outputs)) {
+            for b in GRAPH.iter().flat_map(|t| t.inputs.iter().chain(t.outputs)) {
+                if a.name == b.name {
+                    assert_eq!(a.type_name, b.type_name, "{}", a.name);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_processes_are_every_task_but_the_mission() {
+        let names: Vec<&str> = processes().map(|t| t.name).collect();
+        assert_eq!(names.len(), GRAPH.len() - 1);
+        assert!(!names.contains(&"mission"));
+        assert_eq!(task("qp-resolver").map(|t| t.control_path), Some(true));
+    }
+}
