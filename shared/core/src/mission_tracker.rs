@@ -3,8 +3,10 @@
 //! from inside one controller, as [`crate::on_the_move::OnTheMove`] feeds it in one process.
 //!
 //! Choices:
-//! - **Target of the current task**: perception's estimate for a pick once it has one,
-//!   otherwise the mission's known position (what the in-process runner does).
+//! - **Target of the current task**: for a perceived task (pick or press,
+//!   [`TaskKind::is_perceived`]), the estimate the caller selected for it (perception's, by the
+//!   stack's one selection rule, `crate::stack::TargetSelector`), otherwise the mission's known
+//!   position.
 //! - **Tool-to-target distance** is measured to the reach aim ([`crate::stack::reach_aim`]), exactly as the
 //!   composed controller measures it, so both switch to the final phase at the same point.
 //! - **Final-phase progress** counts only when it names the current task and the mission is
@@ -37,7 +39,7 @@ pub struct MissionTrackerInput<'a> {
     pub base: BasePose,
     /// Arm joint positions.
     pub arm_q: &'a [f64],
-    /// Perception's latest valid estimate of the current pick's object, if any.
+    /// The current task's selected estimate (perception's, or the known position), if any.
     pub estimate: Option<TargetEstimate>,
     /// The final-phase controller's latest progress report, if any.
     pub final_progress: Option<FinalProgress>,
@@ -120,7 +122,7 @@ impl MissionTracker {
         };
         let target = match input.estimate {
             Some(estimate)
-                if task.kind == TaskKind::Pick
+                if task.kind.is_perceived()
                     && estimate.position.iter().all(|v| v.is_finite())
                     && estimate.velocity.iter().all(|v| v.is_finite()) =>
             {

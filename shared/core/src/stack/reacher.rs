@@ -1,5 +1,8 @@
 //! The reacher process: the reacher driven by the mission, the base planner's plan and the
-//! measured arm state, with the twist fed back as [`crate::on_the_move`] does.
+//! measured arm state. The tool state fed back to it is the commanded motion: the twist the QP
+//! resolver resolved last (the one twist-rate state of the stack, which the resolver keeps and
+//! publishes), with the reacher's own planned acceleration while it is the one reaching, and
+//! the resolved twist's rate of change otherwise (final phase, hand-overs).
 
 use nalgebra::Vector6;
 
@@ -61,6 +64,8 @@ pub struct ReacherCycle {
     dt: f64,
     last_twist: Twist,
     last_acceleration: Vector6<f64>,
+    /// The reacher's own last twist and planned acceleration, until the resolver reports.
+    own: Option<(Twist, Vector6<f64>)>,
 }
 
 impl ReacherCycle {
@@ -73,20 +78,20 @@ impl ReacherCycle {
             dt,
             last_twist: Twist::zeros(),
             last_acceleration: Vector6::zeros(),
+            own: None,
         }
     }
 
-    /// Records a twist another controller commanded (the final phase's), so the tool state fed
-    /// back after it is the commanded (rate-limited) motion, as in the single-process
-    /// controller.
-    pub fn follow(&mut self, twist: Twist) {
-        if twist.iter().all(|x| x.is_finite()) {
-            self.last_acceleration = (twist - self.last_twist) / self.dt;
-            self.last_twist = self
-                .config
-                .twist_rate
-                .apply(&self.last_twist, &twist, self.dt);
+    /// Takes in the twist the QP resolver resolved (rate-limited, or zero when it stopped):
+    /// the tool state fed back from now on. Its acceleration is the reacher's own plan when the
+    /// reacher produced the last twist, else the resolved twist's rate of change.
+    pub fn feedback(&mut self, resolved: Twist) {
+        if !resolved.iter().all(|x| x.is_finite()) {
+            return;
         }
+        let derived = (resolved - self.last_twist) / self.dt;
+        self.last_acceleration = self.own.take().map_or(derived, |(_, planned)| planned);
+        self.last_twist = resolved;
     }
 
     /// One cycle: the reach twist of the current task (after the last task, the ready pose
@@ -124,11 +129,7 @@ impl ReacherCycle {
                 dt: self.dt,
             })
             .map_err(|_| ReacherIdle::BadInput)?;
-        self.last_twist = self
-            .config
-            .twist_rate
-            .apply(&self.last_twist, &out.twist, self.dt);
-        self.last_acceleration = out.acceleration;
+        self.own = Some((out.twist, out.acceleration));
         Ok(out)
     }
 }

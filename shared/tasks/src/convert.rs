@@ -3,6 +3,7 @@
 
 use motm_core::kinematics::BasePose;
 use motm_core::mission::{Phase, TaskKind};
+use motm_core::mission_tracker::MissionTrackerOutput;
 use motm_core::resolver::{ResolveStatus, ResolverOutput};
 use motm_core::stack::base_planner::BasePlannerOutput;
 use motm_core::stack::perception::PerceptionReport;
@@ -13,6 +14,32 @@ use motm_core::{BaseVelocity, GripperCommand, TargetEstimate, TaskProgress, Twis
 use motm_msgs as msgs;
 use motm_msgs::{MAX_ARM_JOINTS, Message, envelope};
 use nalgebra::Vector3;
+
+/// `message` stamped at `stamp_ns` (the sink assigns the sequence number).
+pub fn stamped<M: Message>(mut message: M, stamp_ns: u64) -> M {
+    message.header_mut().stamp_ns = stamp_ns;
+    message
+}
+
+/// The [`msgs::MissionState`] message of a mission tracker's output.
+pub fn mission_state(out: &MissionTrackerOutput) -> msgs::MissionState {
+    let mut m = msgs::MissionState::zeroed();
+    m.task_index = out.task_index as u32;
+    m.task_count = out.task_count as u32;
+    m.task_kind = match out.kind {
+        Some(TaskKind::Pick) | None => msgs::TaskKindCode::Pick,
+        Some(TaskKind::Place) => msgs::TaskKindCode::Place,
+        Some(TaskKind::PressButton) => msgs::TaskKindCode::PressButton,
+    }
+    .into();
+    m.phase = phase_code(out.phase).into();
+    m.current_target = out.current_target.into();
+    if let Some(next) = out.next_target {
+        m.next_target = next.into();
+        m.has_next = 1;
+    }
+    m
+}
 
 /// The core phase of a message phase.
 pub fn phase(code: msgs::TaskPhase) -> Phase {
