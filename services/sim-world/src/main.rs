@@ -10,7 +10,7 @@
 //! Real time: each cycle runs the physics steps due since the first cycle (normally one, up to
 //! `--max-catch-up` after lost timer ticks; beyond that the simulation falls behind). A hardware
 //! command older than `--command-timeout` is braked to zero within the robot's limits.
-mod convert;
+use motm_sim::messages as convert;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

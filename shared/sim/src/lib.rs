@@ -9,6 +9,7 @@ pub mod experiment;
 pub mod geometry;
 pub mod grasp;
 pub mod gripper;
+pub mod messages;
 pub mod metrics;
 pub mod objects;
 mod pixel_noise;
@@ -17,6 +18,7 @@ pub mod render;
 pub mod runner;
 pub mod scenario;
 pub mod sim_world;
+pub mod task;
 pub mod trial_camera;
 pub mod world;
 

@@ -1,29 +1,43 @@
-//! The in-process runner: one trial of a scenario with every module in one process, stepping in
-//! lockstep simulated time as fast as the CPU allows.
+//! The in-process runner: one trial of a scenario with every task of the graph in one process,
+//! scheduled in lockstep simulated time over the in-memory bus as fast as the CPU allows.
 //!
-//! Rates (config values): physics 1 kHz, camera 30 Hz (with its latency), control 200 Hz. Each
-//! control cycle reads the sensors and the latest object estimate, runs the method's step
-//! function and sends the command to the world, exactly what the deployed processes do over
-//! shared memory.
+//! MotM runs the very tasks the deployed services run ([`motm_tasks`]: the drivers,
+//! perception, base planner, reacher, final phase, QP resolver and the supervisor's mission),
+//! with the simulated hardware as one more task ([`crate::task::SimWorldTask`]), at the rates
+//! and triggers of their rows in [`motm_graph::GRAPH`]. The messages on the bus are the
+//! iceoryx2 payloads, validated on receipt exactly as the services validate them.
 //!
-//! Object estimates: the current pick's cube and the current press's button cap are estimated by
-//! perception from the rendered palm image (see `TaskKind::is_perceived`); until the first fix
-//! the scenario's position stands in (what a mission would be given), and when the target leaves
-//! the view the last estimate is held. Containers are known positions. Perception is reset when a
-//! new task starts, with the scenario position as its hint.
+//! The baselines run in the same simulated world: the reactive baseline and the planning
+//! baseline read the sensors and command the hardware directly, each cycle at the control rate.
+//! For the reactive baseline, the current pick's cube and the current press's button cap are
+//! estimated by perception from the rendered palm image; until the first fix the scenario's
+//! position stands in, and when the target leaves the view the last estimate is held.
 
 use std::collections::VecDeque;
 use std::time::Instant;
 
 use motm_core::camera::CameraConfig;
+use motm_core::command_limiter::CommandLimiterConfig;
 use motm_core::final_phase::FinalPhaseStage;
-use motm_core::mission::{MissionTask, Phase};
-use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput, OnTheMoveOutput};
+use motm_core::mission::MissionTask;
+use motm_core::on_the_move::OnTheMoveConfig;
 use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
 use motm_core::reactive::{ReactiveBaseline, ReactiveConfig, ReactiveInput};
 use motm_core::resolver::RedundancyResolver;
-use motm_core::{GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress};
+use motm_core::stack::final_phase::VariantMode;
+use motm_core::stack::resolver::ResolverCycleConfig;
+use motm_core::{BaseVelocity, GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress};
+use motm_graph::{Scheduler, Source, TaskSpec};
+use motm_msgs::{self as msgs, topics};
+use motm_tasks::ControlSetup;
+use motm_tasks::base_planner::BasePlannerTask;
+use motm_tasks::driver::{self, ArmDriverTask, BaseDriverTask};
+use motm_tasks::final_phase::FinalPhaseTask;
+use motm_tasks::mission::MissionSequencerTask;
+use motm_tasks::perception::PerceptionTask;
+use motm_tasks::reacher::ReacherTask;
+use motm_tasks::resolver::ResolverTask;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use crate::experiment::{Method, TrialResult, TrialTrace};
@@ -34,6 +48,7 @@ use crate::render::{
 };
 use crate::scenario::Scenario;
 use crate::sim_world::{HardwareInput, SimWorld, SimWorldConfig, TrialStatus};
+use crate::task::SimWorldTask;
 use crate::world::{HardwareCommand, Outcome, World};
 
 /// Settings of the runner and of every method it can run.
@@ -90,8 +105,6 @@ const PLANNING_POSITION_ERROR: f64 = 0.02;
 
 /// A method's controller, stepped at the control rate.
 enum Controller {
-    /// MotM.
-    Motm(Box<OnTheMove>),
     /// The reactive baseline.
     Reactive(Box<ReactiveBaseline>),
     /// The planning baseline: the plan's tracker plus the QP that turns its EE twist into joint
@@ -268,34 +281,370 @@ impl TargetTracker {
 /// Number of MotM internal columns at the end of a trace row.
 const MOTM_COLUMNS: usize = 9;
 
-/// MotM's internals for the trace: phase, stage, twist (linear), tool-to-target distance, slack,
-/// the base controller's speed target and the first arm joint.
-fn motm_internals(out: &OnTheMoveOutput, arm_q: &[f64]) -> [f64; MOTM_COLUMNS] {
-    let phase = match out.phase {
-        Phase::Reach => 0.0,
-        Phase::Final => 1.0,
-        Phase::Complete => 2.0,
-    };
-    let stage = out.stage.map_or(-1.0, |stage| match stage {
-        FinalPhaseStage::Approach => 0.0,
-        FinalPhaseStage::Closing => 1.0,
-        FinalPhaseStage::Lifting => 2.0,
-        FinalPhaseStage::Releasing => 3.0,
-        FinalPhaseStage::Pushing => 4.0,
-        FinalPhaseStage::Retracting => 5.0,
-        FinalPhaseStage::Done => 6.0,
-    });
+/// MotM's internals for the trace, from what the tasks published and hold: phase, stage, the
+/// resolved twist (linear), tool-to-target distance, slack, the base controller's speed target
+/// and the first arm joint.
+fn motm_internals(taps: &Taps, scheduler: &Scheduler, arm_q: &[f64]) -> [f64; MOTM_COLUMNS] {
+    let phase = taps
+        .mission
+        .and_then(|m| msgs::TaskPhase::try_from(m.phase).ok())
+        .map_or(0.0, |phase| match phase {
+            msgs::TaskPhase::Reach => 0.0,
+            msgs::TaskPhase::Final => 1.0,
+            msgs::TaskPhase::Complete => 2.0,
+        });
+    let stage = scheduler
+        .task::<FinalPhaseTask>(motm_graph::FINAL_PHASE.name)
+        .and_then(FinalPhaseTask::stage)
+        .map_or(-1.0, |stage| match stage {
+            FinalPhaseStage::Approach => 0.0,
+            FinalPhaseStage::Closing => 1.0,
+            FinalPhaseStage::Lifting => 2.0,
+            FinalPhaseStage::Releasing => 3.0,
+            FinalPhaseStage::Pushing => 4.0,
+            FinalPhaseStage::Retracting => 5.0,
+            FinalPhaseStage::Done => 6.0,
+        });
+    let twist = taps.qp.map_or([0.0; 6], |q| q.twist);
+    let tool_to_target = scheduler
+        .task::<MissionSequencerTask>(motm_graph::MISSION.name)
+        .and_then(MissionSequencerTask::last)
+        .map_or(f64::INFINITY, |m| m.tool_to_target);
     [
         phase,
         stage,
-        out.twist[0],
-        out.twist[1],
-        out.twist[2],
-        out.tool_to_target,
-        out.slack_norm,
-        out.base_target.v,
+        twist[0],
+        twist[1],
+        twist[2],
+        tool_to_target,
+        taps.qp.map_or(0.0, |q| q.slack_norm),
+        taps.base_target.map_or(0.0, |b| b.v),
         arm_q.first().copied().unwrap_or(0.0),
     ]
+}
+
+/// The runner's own reader on the in-process bus, like the logger's tap on iceoryx2.
+const RUNNER_READER: motm_graph::ReaderId = 1_000;
+
+/// The latest samples of the topics the trace shows.
+#[derive(Default)]
+struct Taps {
+    mission: Option<msgs::MissionState>,
+    target: Option<msgs::TargetEstimate>,
+    qp: Option<msgs::QpStatus>,
+    base_target: Option<msgs::BaseVelocityCommand>,
+    base_command: Option<msgs::BaseVelocityCommand>,
+}
+
+impl Taps {
+    fn read(&mut self, bus: &mut motm_graph::MemBus) {
+        let mut port = bus.port(RUNNER_READER);
+        port.latest(topics::MISSION_STATE, &mut self.mission);
+        port.latest(topics::PERCEPTION_TARGET, &mut self.target);
+        port.latest(topics::CONTROL_QP_STATUS, &mut self.qp);
+        port.latest(topics::BASE_VELOCITY_TARGET, &mut self.base_target);
+        port.latest(topics::BASE_VELOCITY_COMMAND, &mut self.base_command);
+    }
+}
+
+/// The MotM graph of `scenario`: every task of [`motm_graph::GRAPH`] (but the watchdog, which
+/// watches processes), with `sim` as the hardware.
+fn motm_graph(
+    robot: &Robot,
+    scenario: &Scenario,
+    sim: SimWorld,
+    config: &RunnerConfig,
+) -> Result<Scheduler, String> {
+    let physics_step_ns = (config.physics_step * 1e9).round() as u64;
+    let control = config.control_rate_hz;
+    let mut motm = config.motm.clone();
+    motm.base.forward_speed = scenario.base_speed;
+    let setup = ControlSetup {
+        robot: robot.clone(),
+        config: motm.clone(),
+        rate_hz: control,
+    };
+    let calibration = sim.camera().calibration();
+    let start = scenario.start();
+    let stale = CommandLimiterConfig::default().stale_periods;
+    let status_every = |rate: f64| (rate / DRIVER_STATUS_RATE_HZ).round().max(1.0) as u64;
+    let rate = |spec: &TaskSpec| spec.rate.hz(control);
+    let arm_rate = rate(&motm_graph::PANDA_DRIVER);
+    let base_rate = rate(&motm_graph::LD60_DRIVER);
+    let arm = driver::velocity_driver(driver::arm_axes(robot), 1.0 / arm_rate, control, stale)?;
+    let base = driver::velocity_driver(driver::base_axes(robot), 1.0 / base_rate, control, stale)?;
+    let truth_every = (1.0 / (TRUTH_RATE_HZ * config.physics_step))
+        .round()
+        .max(1.0) as u64;
+    let mut s = Scheduler::new(physics_step_ns);
+    s.add(
+        SimWorldTask::new(sim, truth_every, 1),
+        &motm_graph::SIM_WORLD,
+        1.0 / config.physics_step,
+    );
+    s.add(
+        ArmDriverTask::new(arm, status_every(arm_rate)),
+        &motm_graph::PANDA_DRIVER,
+        arm_rate,
+    );
+    s.add(
+        BaseDriverTask::new(base, status_every(base_rate)),
+        &motm_graph::LD60_DRIVER,
+        base_rate,
+    );
+    s.add(
+        PerceptionTask::new(
+            robot.clone(),
+            config.perception,
+            calibration,
+            PERCEPTION_HISTORY,
+            motm.mission.run_out_distance,
+        ),
+        &motm_graph::PERCEPTION,
+        rate(&motm_graph::PERCEPTION),
+    );
+    s.add(
+        BasePlannerTask::new(&setup),
+        &motm_graph::BASE_PLANNER,
+        rate(&motm_graph::BASE_PLANNER),
+    );
+    s.add(
+        ReacherTask::new(&setup),
+        &motm_graph::REACHER,
+        rate(&motm_graph::REACHER),
+    );
+    s.add(
+        FinalPhaseTask::new(
+            &setup,
+            VariantMode::FollowMission,
+            FINAL_PHASE_CONTROLLER_ID,
+        ),
+        &motm_graph::FINAL_PHASE,
+        rate(&motm_graph::FINAL_PHASE),
+    );
+    s.add(
+        ResolverTask::new(&setup, ResolverCycleConfig::default()),
+        &motm_graph::QP_RESOLVER,
+        rate(&motm_graph::QP_RESOLVER),
+    );
+    s.add(
+        MissionSequencerTask::new(
+            robot.clone(),
+            motm,
+            scenario.mission_tasks(),
+            Vector3::new(start.x, start.y, 0.0),
+        ),
+        &motm_graph::MISSION,
+        rate(&motm_graph::MISSION),
+    );
+    Ok(s)
+}
+
+/// The driver status rate, Hz (the drivers' `--status-rate` default).
+const DRIVER_STATUS_RATE_HZ: f64 = 50.0;
+/// The ground-truth rate, Hz (sim-world's `--truth-rate` default).
+const TRUTH_RATE_HZ: f64 = 100.0;
+/// Tool poses perception keeps (its `--history` default).
+const PERCEPTION_HISTORY: usize = 200;
+/// The final-phase controller's id (its `--controller-id` default).
+const FINAL_PHASE_CONTROLLER_ID: u32 = 1;
+
+/// The result of the trial `sim` ran, which took `wall` so far.
+fn trial_result(sim: &SimWorld, wall_start: Instant) -> TrialResult {
+    let status = sim.status();
+    let (success, failure) = (
+        status == TrialStatus::Decided(Outcome::Success),
+        status.failure().map(str::to_string),
+    );
+    let meter = sim.meter();
+    let truth = sim.truth();
+    let sim_time = truth.time;
+    let mut placed: Vec<f64> = truth.objects.iter().filter_map(|o| o.placed_time).collect();
+    placed.sort_by(f64::total_cmp);
+    let round_trips_s = placed
+        .iter()
+        .scan(0.0, |last, &t| {
+            let trip = t - *last;
+            *last = t;
+            Some(trip)
+        })
+        .collect();
+    TrialResult {
+        success,
+        failure,
+        task_time_s: sim_time,
+        mtph: if success { 3600.0 / sim_time } else { 0.0 },
+        ee_acc_mean: meter.mean(),
+        ee_acc_max: meter.max(),
+        ee_acc_filter: meter.description().to_string(),
+        sim_time_s: sim_time,
+        wall_time_s: wall_start.elapsed().as_secs_f64(),
+        round_trips_s,
+    }
+}
+
+/// A new trace of `sim`'s layout.
+fn new_trace(sim: &SimWorld, objects: usize) -> TrialTrace {
+    TrialTrace {
+        containers: sim
+            .world()
+            .layout()
+            .containers
+            .iter()
+            .map(|c| (c.rim_center.x, c.rim_center.y))
+            .collect(),
+        objects: vec![Vec::new(); objects],
+        ..TrialTrace::default()
+    }
+}
+
+/// Appends the sparse samples (base, tool, objects) of `truth` to `trace`.
+fn sample_trace(trace: &mut TrialTrace, truth: &crate::Truth) {
+    trace.base.push((truth.base_pose.x, truth.base_pose.y));
+    let tool = truth.tool_pose.translation.vector;
+    trace.ee.push((tool.x, tool.y));
+    for (path, object) in trace.objects.iter_mut().zip(&truth.objects) {
+        let p = object.position();
+        path.push((p.x, p.y));
+    }
+}
+
+/// One trace row: time, task, true and odometry poses, tool, target, cube, gripper, command,
+/// then `internals`.
+fn trace_row(
+    sim: &SimWorld,
+    task_index: usize,
+    item: usize,
+    target: &TargetEstimate,
+    command: BaseVelocity,
+    internals: &[f64],
+) -> Vec<f64> {
+    let truth = sim.truth();
+    let sensors = sim.sensors();
+    let tool = truth.tool_pose.translation.vector;
+    let cube = truth
+        .objects
+        .get(item)
+        .map_or(Vector3::zeros(), |o| o.position());
+    let odom = &sensors.base_pose;
+    let mut row = vec![
+        truth.time,
+        task_index as f64,
+        truth.base_pose.x,
+        truth.base_pose.y,
+        truth.base_pose.yaw,
+        odom.x,
+        odom.y,
+        odom.yaw,
+        truth.base_velocity.v,
+        tool.x,
+        tool.y,
+        tool.z,
+        target.position.x,
+        target.position.y,
+        target.position.z,
+        cube.x,
+        cube.y,
+        cube.z,
+        truth.gripper_opening,
+        command.v,
+        command.omega,
+    ];
+    row.extend_from_slice(internals);
+    row
+}
+
+/// One MotM trial: the graph's tasks scheduled in lockstep until the world decides.
+fn run_motm_trial(
+    robot: &Robot,
+    scenario: &Scenario,
+    sim: SimWorld,
+    config: &RunnerConfig,
+    record_trace: bool,
+    wall_start: Instant,
+) -> Result<(TrialResult, Option<TrialTrace>), String> {
+    let tasks = scenario.mission_tasks();
+    let mut trace = record_trace.then(|| new_trace(&sim, scenario.objects.len()));
+    let mut scheduler = motm_graph(robot, scenario, sim, config)?;
+    let physics_step_ns = (config.physics_step * 1e9).round() as u64;
+    let control_ticks = ((1.0 / config.control_rate_hz) / config.physics_step)
+        .round()
+        .max(1.0) as u64;
+    let mut taps = Taps::default();
+    let mut tick = 0u64;
+    loop {
+        let sim_task = |s: &Scheduler| {
+            s.task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
+                .map(SimWorldTask::sim)
+                .map(SimWorld::status)
+        };
+        if sim_task(&scheduler) != Some(TrialStatus::Running) {
+            break;
+        }
+        // Frames perception would not read are not rendered (the same trial either way).
+        let perceiving = taps.mission.is_some_and(|m| {
+            msgs::TaskPhase::try_from(m.phase) != Ok(msgs::TaskPhase::Complete)
+                && tasks
+                    .get(m.task_index as usize)
+                    .is_some_and(|t| t.kind.is_perceived())
+        });
+        if let Some(sim) = scheduler.task_mut::<SimWorldTask>(motm_graph::SIM_WORLD.name) {
+            sim.set_rendering(perceiving || taps.mission.is_none());
+        }
+        scheduler.tick();
+        let control_cycle = tick.is_multiple_of(control_ticks);
+        tick += 1;
+        if !control_cycle {
+            continue;
+        }
+        taps.read(scheduler.bus());
+        let Some(trace) = trace.as_mut() else {
+            continue;
+        };
+        let Some(sim) = scheduler
+            .task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
+            .map(SimWorldTask::sim)
+        else {
+            break;
+        };
+        let cycle = tick / control_ticks;
+        if config.record_cycles {
+            let task_index = taps.mission.map_or(0, |m| m.task_index as usize);
+            let item = tasks.get(task_index).map_or(0, |t| t.item);
+            let target = taps.target.map_or_else(
+                || {
+                    TargetEstimate::fixed(
+                        tasks
+                            .get(task_index)
+                            .map_or(Vector3::zeros(), |t| t.position),
+                    )
+                },
+                |t| TargetEstimate {
+                    position: Vector3::from(t.position),
+                    velocity: Vector3::from(t.velocity),
+                },
+            );
+            let command = taps
+                .base_command
+                .map_or(BaseVelocity::default(), |c| BaseVelocity {
+                    v: c.v,
+                    omega: c.omega,
+                });
+            let internals = motm_internals(&taps, &scheduler, &sim.sensors().arm_q);
+            trace.cycles.push(trace_row(
+                sim, task_index, item, &target, command, &internals,
+            ));
+        }
+        if (cycle - 1).is_multiple_of(config.trace_every.max(1) as u64) {
+            sample_trace(trace, sim.truth());
+        }
+    }
+    let _ = physics_step_ns;
+    let sim = scheduler
+        .task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
+        .map(SimWorldTask::sim)
+        .ok_or("the graph has no sim-world task")?;
+    Ok((trial_result(sim, wall_start), trace))
 }
 
 /// Runs one trial of `scenario` with `method`. `Err` only when the trial cannot be set up (e.g.
@@ -310,21 +659,13 @@ pub fn run_trial(
 ) -> Result<(TrialResult, Option<TrialTrace>), String> {
     let wall_start = Instant::now();
     let tasks = scenario.mission_tasks();
-    // The same world, camera, metrics and verdict as the sim-world process; the command is always
-    // fresh here (age 0), so its hardware brakes never engage.
+    // The same world, camera, metrics and verdict as the sim-world process.
     let mut sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
         .map_err(|e| e.to_string())?;
-    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, sim.camera());
-    let start = scenario.start();
-    let mut motm_config = config.motm.clone();
-    motm_config.base.forward_speed = scenario.base_speed;
     let mut controller = match method {
-        Method::Motm => Controller::Motm(Box::new(OnTheMove::new(
-            robot.clone(),
-            motm_config,
-            tasks.clone(),
-            Vector3::new(start.x, start.y, 0.0),
-        ))),
+        Method::Motm => {
+            return run_motm_trial(robot, scenario, sim, config, record_trace, wall_start);
+        }
         Method::Reactive => {
             let mut reactive = config.reactive.clone();
             reactive.max_base_speed = scenario.base_speed;
@@ -335,6 +676,7 @@ pub fn run_trial(
             )))
         }
         Method::Planning => {
+            let start = scenario.start();
             let [object] = scenario.objects.as_slice() else {
                 return Err(format!(
                     "{}: the planning baseline plans one pick and place; this scenario has {} objects",
@@ -375,22 +717,12 @@ pub fn run_trial(
             }
         }
     };
-
+    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, sim.camera());
     let control_dt = 1.0 / config.control_rate_hz;
     let physics_per_control = (control_dt / config.physics_step).round().max(1.0) as usize;
-    let mut trace = record_trace.then(|| TrialTrace {
-        containers: sim
-            .world()
-            .layout()
-            .containers
-            .iter()
-            .map(|c| (c.rim_center.x, c.rim_center.y))
-            .collect(),
-        objects: vec![Vec::new(); scenario.objects.len()],
-        ..TrialTrace::default()
-    });
+    let mut trace = record_trace.then(|| new_trace(&sim, scenario.objects.len()));
     let mut cycle = 0usize;
-    let mut internals = [0.0; MOTM_COLUMNS];
+    let internals = [0.0; MOTM_COLUMNS];
     while sim.status() == TrialStatus::Running {
         let sensors = sim.sensors().clone();
         let t = sensors.time;
@@ -398,30 +730,12 @@ pub fn run_trial(
         let believed_tool = robot.tool_pose(&sensors.base_pose, &sensors.arm_q);
         tracker.record_tool(t, believed_tool);
         let task_index = match &controller {
-            Controller::Motm(c) => c.mission().task_index(),
             Controller::Reactive(c) => c.task_index(),
             Controller::Planning(..) => 0,
         };
         tracker.select(task_index.min(tasks.len().saturating_sub(1)), sim.camera());
         let target = tracker.target();
         let command = match &mut controller {
-            Controller::Motm(c) => {
-                let out = c.step(&OnTheMoveInput {
-                    t,
-                    dt: control_dt,
-                    base: sensors.base_pose,
-                    base_velocity: sensors.base_velocity,
-                    arm_q: &sensors.arm_q,
-                    gripper_opening: sensors.gripper_opening,
-                    target,
-                });
-                internals = motm_internals(&out, &sensors.arm_q);
-                HardwareCommand {
-                    arm_qd: out.arm_qd,
-                    base: out.base,
-                    gripper: out.gripper,
-                }
-            }
             Controller::Reactive(c) => {
                 let out = c.step(&ReactiveInput {
                     t,
@@ -476,83 +790,24 @@ pub fn run_trial(
                 tracker.observe(&frame.image, frame.width, frame.height, frame.stamp);
             }
         }
-        let truth = sim.truth();
         if let Some(trace) = trace.as_mut().filter(|_| config.record_cycles) {
-            let tool = truth.tool_pose.translation.vector;
-            let cube = truth
-                .objects
-                .get(tasks.get(task_index).map_or(0, |t| t.item))
-                .map_or(Vector3::zeros(), |o| o.position());
-            let odom = &sensors.base_pose;
-            let mut row = vec![
-                t,
-                task_index as f64,
-                truth.base_pose.x,
-                truth.base_pose.y,
-                truth.base_pose.yaw,
-                odom.x,
-                odom.y,
-                odom.yaw,
-                truth.base_velocity.v,
-                tool.x,
-                tool.y,
-                tool.z,
-                target.position.x,
-                target.position.y,
-                target.position.z,
-                cube.x,
-                cube.y,
-                cube.z,
-                truth.gripper_opening,
-                command.base.v,
-                command.base.omega,
-            ];
-            row.extend_from_slice(&internals);
-            trace.cycles.push(row);
+            let item = tasks.get(task_index).map_or(0, |t| t.item);
+            trace.cycles.push(trace_row(
+                &sim,
+                task_index,
+                item,
+                &target,
+                command.base,
+                &internals,
+            ));
         }
         if let Some(trace) = trace
             .as_mut()
             .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))
         {
-            trace.base.push((truth.base_pose.x, truth.base_pose.y));
-            let tool = truth.tool_pose.translation.vector;
-            trace.ee.push((tool.x, tool.y));
-            for (path, object) in trace.objects.iter_mut().zip(&truth.objects) {
-                let p = object.position();
-                path.push((p.x, p.y));
-            }
+            sample_trace(trace, sim.truth());
         }
         cycle += 1;
     }
-    let status = sim.status();
-    let (success, failure) = (
-        status == TrialStatus::Decided(Outcome::Success),
-        status.failure().map(str::to_string),
-    );
-    let meter = sim.meter();
-    let truth = sim.truth();
-    let sim_time = truth.time;
-    let mut placed: Vec<f64> = truth.objects.iter().filter_map(|o| o.placed_time).collect();
-    placed.sort_by(f64::total_cmp);
-    let round_trips_s = placed
-        .iter()
-        .scan(0.0, |last, &t| {
-            let trip = t - *last;
-            *last = t;
-            Some(trip)
-        })
-        .collect();
-    let result = TrialResult {
-        success,
-        failure,
-        task_time_s: sim_time,
-        mtph: if success { 3600.0 / sim_time } else { 0.0 },
-        ee_acc_mean: meter.mean(),
-        ee_acc_max: meter.max(),
-        ee_acc_filter: meter.description().to_string(),
-        sim_time_s: sim_time,
-        wall_time_s: wall_start.elapsed().as_secs_f64(),
-        round_trips_s,
-    };
-    Ok((result, trace))
+    Ok((trial_result(&sim, wall_start), trace))
 }

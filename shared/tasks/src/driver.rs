@@ -287,3 +287,41 @@ impl Task for BaseDriverTask {
         }
     }
 }
+
+/// The arm's axis limits of `robot` (its joints after the two base joints).
+pub fn arm_axes(robot: &motm_core::Robot) -> Vec<motm_core::command_limiter::AxisLimits> {
+    robot.limits()[motm_core::BASE_JOINTS..]
+        .iter()
+        .map(motm_core::command_limiter::AxisLimits::from)
+        .collect()
+}
+
+/// The base's axis limits of `robot`, in `[v, omega]` order (its joints are
+/// `[yaw (omega), forward (v), arm...]`).
+pub fn base_axes(robot: &motm_core::Robot) -> Vec<motm_core::command_limiter::AxisLimits> {
+    let limits = robot.limits();
+    vec![
+        motm_core::command_limiter::AxisLimits::from(&limits[1]),
+        motm_core::command_limiter::AxisLimits::from(&limits[0]),
+    ]
+}
+
+/// A velocity driver over `axes` stepped every `period_s`, for a command stream at
+/// `control_rate_hz` that is stale after `stale_periods` periods.
+pub fn velocity_driver(
+    axes: Vec<motm_core::command_limiter::AxisLimits>,
+    period_s: f64,
+    control_rate_hz: f64,
+    stale_periods: u32,
+) -> Result<VelocityDriver, String> {
+    use motm_core::command_limiter::CommandLimiterConfig;
+    use motm_core::velocity_driver::VelocityDriverConfig;
+    let config = VelocityDriverConfig {
+        limiter: CommandLimiterConfig {
+            command_period: 1.0 / control_rate_hz,
+            stale_periods,
+            ..CommandLimiterConfig::default()
+        },
+    };
+    VelocityDriver::new(axes, period_s, config).map_err(|e| e.to_string())
+}

@@ -4,6 +4,7 @@
 //! task's controller id, so a hot swap can tell the old controller from the new one.
 
 use motm_core::Robot;
+use motm_core::final_phase::FinalPhaseStage;
 use motm_core::mission::Phase;
 use motm_core::stack::final_phase::{FinalPhaseCycle, FinalPhaseCycleInput, VariantMode};
 use motm_core::stack::seconds;
@@ -45,6 +46,7 @@ pub struct FinalPhaseTask {
     view: ControlView,
     cycle: FinalPhaseCycle,
     controller_id: u32,
+    stage: Option<FinalPhaseStage>,
 }
 
 impl FinalPhaseTask {
@@ -55,7 +57,13 @@ impl FinalPhaseTask {
             view: ControlView::new(setup.config.mission.run_out_distance),
             cycle: FinalPhaseCycle::new(mode, setup.config.final_phase),
             controller_id,
+            stage: None,
         }
+    }
+
+    /// The controller's stage in the last cycle (`None` outside the final phase).
+    pub fn stage(&self) -> Option<FinalPhaseStage> {
+        self.stage
     }
 
     /// Cycles whose input was not finite.
@@ -85,6 +93,7 @@ impl Task for FinalPhaseTask {
         let (Some(mission), Some(measured), Some(target)) =
             (snapshot.mission, snapshot.measured, snapshot.target)
         else {
+            self.stage = None;
             return FinalPhaseOutputs::default();
         };
         if measured.arm_q.len() != self.robot.arm_dof() {
@@ -100,6 +109,7 @@ impl Task for FinalPhaseTask {
             // Without a gripper state the controller refuses the cycle and nothing is sent.
             gripper_opening: inputs.gripper.as_ref().map_or(f64::NAN, |g| g.width),
         });
+        self.stage = out.control.map(|c| c.stage);
         let accepted = out.control.is_none_or(|c| !c.input_rejected);
         FinalPhaseOutputs {
             twist: out.control.filter(|c| !c.input_rejected).map(|control| {

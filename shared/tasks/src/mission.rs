@@ -7,7 +7,7 @@
 //! estimate stamped no earlier than the moment this task first saw the current task.
 
 use motm_core::Robot;
-use motm_core::mission::{MissionTask as Task_, Phase, TaskKind};
+use motm_core::mission::{MissionTask as MissionItem, Phase, TaskKind};
 use motm_core::mission_tracker::{
     FinalProgress, MissionTracker, MissionTrackerInput, MissionTrackerOutput,
 };
@@ -45,20 +45,20 @@ ports! {
 }
 
 /// The mission task.
-pub struct MissionTask {
+pub struct MissionSequencerTask {
     tracker: MissionTracker,
     selector: TargetSelector,
     final_twists: PerController<msgs::TwistCommand>,
     last: Option<MissionTrackerOutput>,
 }
 
-impl MissionTask {
+impl MissionSequencerTask {
     /// The mission over `tasks` for `robot`, base starting at `start`, with the controllers'
     /// `config` (mission thresholds and the reach aim's heights).
     pub fn new(
         robot: Robot,
         config: OnTheMoveConfig,
-        tasks: Vec<Task_>,
+        tasks: Vec<MissionItem>,
         start: Vector3<f64>,
     ) -> Self {
         Self {
@@ -97,7 +97,7 @@ impl MissionTask {
     }
 }
 
-impl Task for MissionTask {
+impl Task for MissionSequencerTask {
     type Inputs = MissionInputs;
     type Outputs = MissionOutputs;
 

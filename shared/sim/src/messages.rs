@@ -1,13 +1,13 @@
 //! Conversions between the simulated world's values and the bus messages.
 
+use crate::render::CameraFrame;
+use crate::sim_world::{SimWorld, TrialStatus};
+use crate::{FailureReason, Outcome, Sensors, Truth};
 use motm_core::{GripperCommand, wrap_angle};
 use motm_msgs::{
     BaseOdometry, CameraImage, GripperAction, GripperState, JointState, MAX_ARM_JOINTS,
     MAX_SIM_OBJECTS, Message, SimOutcome, SimTruth,
 };
-use motm_sim::render::CameraFrame;
-use motm_sim::sim_world::{SimWorld, TrialStatus};
-use motm_sim::{FailureReason, Outcome, Sensors, Truth};
 
 /// The arm state the encoders measure.
 pub fn joint_state(sensors: &Sensors) -> JointState {
@@ -105,10 +105,10 @@ pub fn truth(sim: &SimWorld, catch_up_cycles: u64) -> SimTruth {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Scenario;
+    use crate::runner::RunnerConfig;
+    use crate::sim_world::{HardwareInput, SimWorldConfig};
     use motm_core::Robot;
-    use motm_sim::Scenario;
-    use motm_sim::runner::RunnerConfig;
-    use motm_sim::sim_world::{HardwareInput, SimWorldConfig};
     use std::path::Path;
 
     #[test]

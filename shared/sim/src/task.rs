@@ -1,0 +1,176 @@
+//! The simulated hardware as a task: it steps the world from the newest hardware commands of
+//! the drivers and publishes the arm, base and gripper state every physics step, palm-camera
+//! images at the camera rate (stamped with their exposure time) and the ground truth.
+//!
+//! Time: the world's time 0 is the task's first cycle. Each cycle runs the physics steps due
+//! since then (one when the runtime keeps up; at most `max_catch_up` after lost timer ticks,
+//! beyond which the simulation falls behind). A hardware command older than the world's
+//! command timeout is braked to zero within the robot's limits.
+
+use std::sync::Arc;
+
+use motm_core::BaseVelocity;
+use motm_graph::{Task, boxed_copy, ports};
+use motm_msgs::{self as msgs, Message, topics};
+
+use crate::messages;
+use crate::sim_world::{HardwareInput, SimWorld, TrialStatus};
+
+ports! {
+    /// What the simulated hardware reads.
+    pub struct SimWorldInputs {
+        /// The arm driver's joint velocity command.
+        latest arm: msgs::ArmVelocityCommand = topics::HW_ARM_COMMAND,
+        /// The base driver's twist command.
+        latest base: msgs::BaseVelocityCommand = topics::HW_BASE_COMMAND,
+        /// The arm driver's gripper command.
+        latest gripper: msgs::GripperCommand = topics::HW_GRIPPER_COMMAND,
+    }
+}
+
+ports! {
+    /// What the simulated hardware publishes.
+    pub struct SimWorldOutputs {
+        /// Arm state.
+        latest arm: msgs::JointState = topics::HW_ARM_STATE,
+        /// Base state.
+        latest base: msgs::BaseOdometry = topics::HW_BASE_STATE,
+        /// Gripper state.
+        latest gripper: msgs::GripperState = topics::HW_GRIPPER_STATE,
+        /// A palm-camera image, when one became available.
+        shared image: msgs::CameraImage = topics::CAMERA_IMAGE,
+        /// Ground truth (every `truth_every` steps, and at once when the outcome is decided).
+        latest truth: msgs::SimTruth = topics::SIM_TRUTH,
+    }
+}
+
+/// The simulated-hardware task.
+pub struct SimWorldTask {
+    sim: SimWorld,
+    period_ns: u64,
+    truth_every: u64,
+    max_catch_up: u64,
+    origin_ns: Option<u64>,
+    steps_done: u64,
+    catch_up_cycles: u64,
+    cycle: u64,
+    last_status: TrialStatus,
+    render: bool,
+    arm_qd: Vec<f64>,
+}
+
+impl SimWorldTask {
+    /// The world `sim`, publishing the truth every `truth_every` physics steps and running at
+    /// most `max_catch_up` steps per cycle.
+    pub fn new(sim: SimWorld, truth_every: u64, max_catch_up: u64) -> Self {
+        let period_ns = (sim.physics_step() * 1e9).round() as u64;
+        Self {
+            last_status: sim.status(),
+            arm_qd: Vec::with_capacity(sim.command().arm_qd.len()),
+            sim,
+            period_ns: period_ns.max(1),
+            truth_every: truth_every.max(1),
+            max_catch_up: max_catch_up.max(1),
+            origin_ns: None,
+            steps_done: 0,
+            catch_up_cycles: 0,
+            cycle: 0,
+            render: true,
+        }
+    }
+
+    /// The world.
+    pub fn sim(&self) -> &SimWorld {
+        &self.sim
+    }
+
+    /// Whether camera frames are rendered. A frame nobody reads need not be: the world, the
+    /// captures and every rendered frame are the same either way.
+    pub fn set_rendering(&mut self, render: bool) {
+        self.render = render;
+    }
+}
+
+/// Age of a message stamped `stamp_ns` at `now_ns`, s.
+fn age(now_ns: u64, stamp_ns: u64) -> f64 {
+    now_ns.saturating_sub(stamp_ns) as f64 * 1e-9
+}
+
+impl Task for SimWorldTask {
+    type Inputs = SimWorldInputs;
+    type Outputs = SimWorldOutputs;
+
+    fn name(&self) -> &'static str {
+        motm_graph::SIM_WORLD.name
+    }
+
+    fn step(&mut self, now_ns: u64, inputs: &SimWorldInputs) -> SimWorldOutputs {
+        let origin = *self.origin_ns.get_or_insert(now_ns);
+        self.arm_qd.clear();
+        let arm = inputs.arm.as_ref().map(|c| {
+            self.arm_qd
+                .extend_from_slice(&c.velocity[..c.joint_count as usize]);
+            age(now_ns, c.header.stamp_ns)
+        });
+        let input = HardwareInput {
+            arm: arm.map(|a| (self.arm_qd.as_slice(), a)),
+            base: inputs.base.as_ref().map(|c| {
+                (
+                    BaseVelocity {
+                        v: c.v,
+                        omega: c.omega,
+                    },
+                    age(now_ns, c.header.stamp_ns),
+                )
+            }),
+            gripper: inputs.gripper.as_ref().and_then(messages::gripper_command),
+        };
+        // Real time: run the steps that are due since the first cycle (normally one).
+        let due = (now_ns - origin) / self.period_ns + 1 - self.steps_done;
+        let steps = due.min(self.max_catch_up);
+        if steps > 1 {
+            self.catch_up_cycles += 1;
+        }
+        let mut frame = None;
+        for _ in 0..steps {
+            if let Some(f) = self.sim.step_rendering(&input, self.render) {
+                frame = Some(f);
+            }
+        }
+        // Steps beyond the catch-up limit are dropped: the simulation falls behind.
+        self.steps_done += due;
+        let stamped = |mut m: msgs::JointState| {
+            m.header_mut().stamp_ns = now_ns;
+            m
+        };
+        let sensors = self.sim.sensors();
+        let image = frame.map(|frame| {
+            // The frame's age in simulated time, mapped onto the monotonic clock.
+            let stamp = now_ns.saturating_sub(((self.sim.truth().time - frame.stamp) * 1e9) as u64);
+            let mut image = boxed_copy(&msgs::CameraImage::zeroed());
+            messages::camera_image(&frame, &mut image);
+            image.header.stamp_ns = stamp.max(1);
+            Arc::from(image)
+        });
+        let status = self.sim.status();
+        let truth = (self.cycle.is_multiple_of(self.truth_every) || status != self.last_status)
+            .then(|| {
+                self.last_status = status;
+                let mut m = messages::truth(&self.sim, self.catch_up_cycles);
+                m.header.stamp_ns = now_ns;
+                m
+            });
+        self.cycle += 1;
+        let mut base = messages::odometry(sensors);
+        base.header.stamp_ns = now_ns;
+        let mut gripper = messages::gripper_state(self.sim.truth());
+        gripper.header.stamp_ns = now_ns;
+        SimWorldOutputs {
+            arm: Some(stamped(messages::joint_state(sensors))),
+            base: Some(base),
+            gripper: Some(gripper),
+            image,
+            truth,
+        }
+    }
+}
