@@ -1,6 +1,5 @@
 //! The supervisor's mission task: the [`Mission`] sequencer fed from the bus (joint state,
-//! odometry, the perception estimate and the final-phase controller's progress) instead of
-//! from inside one controller, as [`crate::on_the_move::OnTheMove`] feeds it in one process.
+//! odometry, the selected target estimate and the final-phase controller's progress).
 //!
 //! Choices:
 //! - **Target of the current task**: for a perceived task (pick or press,

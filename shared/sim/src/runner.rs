@@ -25,19 +25,14 @@ use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
 use motm_core::reactive::{ReactiveBaseline, ReactiveConfig, ReactiveInput};
 use motm_core::resolver::RedundancyResolver;
-use motm_core::stack::final_phase::VariantMode;
-use motm_core::stack::resolver::ResolverCycleConfig;
 use motm_core::{BaseVelocity, GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress};
 use motm_graph::{Scheduler, Source, TaskSpec};
 use motm_msgs::{self as msgs, topics};
 use motm_tasks::ControlSetup;
-use motm_tasks::base_planner::BasePlannerTask;
 use motm_tasks::driver::{self, ArmDriverTask, BaseDriverTask};
 use motm_tasks::final_phase::FinalPhaseTask;
 use motm_tasks::mission::MissionSequencerTask;
 use motm_tasks::perception::PerceptionTask;
-use motm_tasks::reacher::ReacherTask;
-use motm_tasks::resolver::ResolverTask;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use crate::experiment::{Method, TrialResult, TrialTrace};
@@ -403,39 +398,11 @@ fn motm_graph(
         &motm_graph::PERCEPTION,
         rate(&motm_graph::PERCEPTION),
     );
-    s.add(
-        BasePlannerTask::new(&setup),
-        &motm_graph::BASE_PLANNER,
-        rate(&motm_graph::BASE_PLANNER),
-    );
-    s.add(
-        ReacherTask::new(&setup),
-        &motm_graph::REACHER,
-        rate(&motm_graph::REACHER),
-    );
-    s.add(
-        FinalPhaseTask::new(
-            &setup,
-            VariantMode::FollowMission,
-            FINAL_PHASE_CONTROLLER_ID,
-        ),
-        &motm_graph::FINAL_PHASE,
-        rate(&motm_graph::FINAL_PHASE),
-    );
-    s.add(
-        ResolverTask::new(&setup, ResolverCycleConfig::default()),
-        &motm_graph::QP_RESOLVER,
-        rate(&motm_graph::QP_RESOLVER),
-    );
-    s.add(
-        MissionSequencerTask::new(
-            robot.clone(),
-            motm,
-            scenario.mission_tasks(),
-            Vector3::new(start.x, start.y, 0.0),
-        ),
-        &motm_graph::MISSION,
-        rate(&motm_graph::MISSION),
+    motm_tasks::graph::add_control_tasks(
+        &mut s,
+        &setup,
+        scenario.mission_tasks(),
+        Vector3::new(start.x, start.y, 0.0),
     );
     Ok(s)
 }
@@ -446,8 +413,6 @@ const DRIVER_STATUS_RATE_HZ: f64 = 50.0;
 const TRUTH_RATE_HZ: f64 = 100.0;
 /// Tool poses perception keeps (its `--history` default).
 const PERCEPTION_HISTORY: usize = 200;
-/// The final-phase controller's id (its `--controller-id` default).
-const FINAL_PHASE_CONTROLLER_ID: u32 = 1;
 
 /// The result of the trial `sim` ran, which took `wall` so far.
 fn trial_result(sim: &SimWorld, wall_start: Instant) -> TrialResult {

@@ -23,6 +23,7 @@ pub mod controllers;
 pub mod convert;
 pub mod driver;
 pub mod final_phase;
+pub mod graph;
 pub mod mission;
 pub mod perception;
 pub mod reacher;

@@ -14,10 +14,8 @@ use super::resolver::{
 use super::*;
 use crate::final_phase::FinalPhaseKind;
 use crate::kinematics::BasePose;
-use crate::mission::{Mission, MissionConfig, MissionTask};
-use crate::on_the_move::{OnTheMove, OnTheMoveInput};
 use crate::robot::Robot;
-use crate::types::{BaseVelocity, TaskProgress, Twist};
+use crate::types::{BaseVelocity, Twist};
 
 const MS: u64 = 1_000_000;
 
@@ -34,21 +32,6 @@ fn view(task_index: usize, kind: TaskKind, phase: Phase) -> MissionView {
         phase,
         target: Vector3::new(2.0, 0.0, 0.45),
         next_waypoint: Vector3::new(4.0, 0.0, 0.35),
-    }
-}
-
-/// The report the supervisor would publish for `mission` (what it knows once complete is not
-/// used by the services).
-fn report_of(mission: &Mission) -> MissionReport {
-    let task = mission.current_task().copied();
-    let target = task.map_or(Vector3::zeros(), |t| t.position);
-    MissionReport {
-        task_index: mission.task_index(),
-        task_count: mission.tasks().len(),
-        kind: task.map_or(TaskKind::Pick, |t| t.kind),
-        phase: mission.phase(),
-        target,
-        next_waypoint: task.map(|_| mission.next_waypoint(&target)),
     }
 }
 
@@ -380,180 +363,12 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
 }
 
 /// Tool-to-target distance of Frankie at the origin with joints `q`.
+/// Tool-to-target distance of Frankie at the origin with joints `q`.
 fn robot_tool_distance(q: &[f64], mission: &MissionView) -> f64 {
     let tool = frankie().tool_pose(&BasePose::default(), q);
     (tool.translation.vector - mission.target).norm()
 }
 
-/// The split services, run in lockstep with zero latency and a supervisor's mission, command
-/// exactly what the single-process controller commands, through both phases of a pick and a
-/// place and on after the mission.
-#[test]
-fn the_split_cycles_agree_with_the_single_process_controller() {
-    let robot = frankie();
-    let config = OnTheMoveConfig::default();
-    let dt = 0.005;
-    let tasks = vec![
-        MissionTask {
-            kind: TaskKind::Pick,
-            item: 0,
-            position: Vector3::new(2.0, 0.3, 0.45),
-        },
-        MissionTask {
-            kind: TaskKind::Place,
-            item: 0,
-            position: Vector3::new(4.0, 0.3, 0.35),
-        },
-    ];
-    let start = Vector3::zeros();
-    let mut whole = OnTheMove::new(robot.clone(), config.clone(), tasks.clone(), start);
-    let mut mission = Mission::new(MissionConfig::default(), tasks, start);
-    let mut latch = MissionLatch::new(config.mission.run_out_distance);
-    let mut selector = TargetSelector::default();
-    let mut planner = BasePlannerCycle::new(&robot, config.base.clone());
-    let mut reacher = ReacherCycle::new(robot.clone(), config.clone(), dt);
-    let mut final_phase = FinalPhaseCycle::new(VariantMode::FollowMission, config.final_phase);
-    let mut resolver = ResolverCycle::new(
-        robot.clone(),
-        config.clone(),
-        ResolverCycleConfig::default(),
-        dt,
-    );
-
-    let mut base = BasePose::default();
-    let mut base_velocity = BaseVelocity::default();
-    let mut q = robot.config.ready_pose.clone();
-    let mut opening = 0.08;
-    let mut phases_seen = Vec::new();
-    // Up to 40 s, and on for 100 cycles after the mission completes.
-    let mut complete_cycles = 0;
-    for cycle in 0..8000u64 {
-        if mission.phase() == Phase::Complete {
-            complete_cycles += 1;
-            if complete_cycles > 100 {
-                break;
-            }
-        }
-        let t = cycle as f64 * dt;
-        let now_ns = cycle * 5 * MS;
-        let view = latch.update(&report_of(&mission)).expect("a mission");
-        let target = selector.select(&view, now_ns, None);
-        let expected = whole.step(&OnTheMoveInput {
-            t,
-            dt,
-            base,
-            base_velocity,
-            arm_q: &q,
-            gripper_opening: opening,
-            target,
-        });
-
-        let plan = planner
-            .step(&BasePlannerInput {
-                mission: view,
-                base,
-                target,
-                dt,
-            })
-            .expect("a plan");
-        let tool_pose = robot.tool_pose(&base, &q);
-        let fp = final_phase.step(&FinalPhaseCycleInput {
-            mission: view,
-            t,
-            tool_pose,
-            base_pose: base,
-            base_velocity,
-            target,
-            gripper_opening: opening,
-        });
-        let mut reach = None;
-        let mut final_twist = None;
-        let mut progress = TaskProgress::Active;
-        if let Some(control) = fp.control {
-            reacher.follow(control.twist);
-            final_twist = Some(sample(control.twist, view.task_index, Phase::Final, 0));
-            progress = control.progress;
-        } else {
-            let out = reacher
-                .step(&ReacherCycleInput {
-                    mission: view,
-                    base,
-                    arm_q: &q,
-                    target,
-                    plan: Some(PlanView {
-                        task_index: plan.task_index,
-                        time_to_range: plan.plan.time_to_range,
-                        range_entry_pose: plan.plan.range_entry_pose,
-                    }),
-                    base_target: plan.plan.command,
-                })
-                .expect("a reach twist");
-            reach = Some(sample(out.twist, view.task_index, Phase::Reach, 0));
-            assert_eq!(out.mode, expected.reach_mode, "cycle {cycle}");
-        }
-        let out = resolver.step(&ResolverCycleInput {
-            mission: Some(view),
-            state: Some(MeasuredState {
-                base,
-                arm_q: &q,
-                base_velocity,
-                age_ns: 0,
-            }),
-            target,
-            reach,
-            final_twist,
-            active_controller: None,
-            base_target: Some((plan.plan.command, 0)),
-        });
-        mission.step(out.tool_to_target, progress);
-
-        assert_eq!(out.source, TwistSource::ActivePhase, "cycle {cycle}");
-        assert_eq!(out.twist, expected.twist, "cycle {cycle}");
-        assert_eq!(out.resolved.arm_qd, expected.arm_qd, "cycle {cycle}");
-        assert_eq!(out.resolved.base, expected.base, "cycle {cycle}");
-        assert_eq!(fp.gripper, Some(expected.gripper), "cycle {cycle}");
-        assert_eq!(plan.plan.command, expected.base_target, "cycle {cycle}");
-        assert_eq!(
-            (mission.task_index(), mission.phase()),
-            (expected.task_index, expected.phase)
-        );
-        if phases_seen.last() != Some(&(expected.task_index, expected.phase)) {
-            phases_seen.push((expected.task_index, expected.phase));
-        }
-
-        // A kinematic plant: integrate the command, the base with a drive gain error (so both
-        // compositions feed the same velocity error forward); the fingers close at 0.1 m/s onto
-        // a 5 cm cube.
-        base_velocity = BaseVelocity {
-            v: expected.base.v * 1.05,
-            omega: expected.base.omega * 0.97,
-        };
-        base.x += base_velocity.v * base.yaw.cos() * dt;
-        base.y += base_velocity.v * base.yaw.sin() * dt;
-        base.yaw = crate::types::wrap_angle(base.yaw + base_velocity.omega * dt);
-        for (qi, v) in q.iter_mut().zip(&expected.arm_qd) {
-            *qi += v * dt;
-        }
-        opening = match expected.gripper {
-            GripperCommand::Open => (opening + 0.1 * dt).min(0.08),
-            GripperCommand::Close => (opening - 0.1 * dt).max(0.05),
-        };
-    }
-    assert_eq!(
-        phases_seen,
-        vec![
-            (0, Phase::Reach),
-            (0, Phase::Final),
-            (1, Phase::Reach),
-            (1, Phase::Final),
-            (2, Phase::Complete)
-        ],
-        "the run must go through the whole mission and on after it"
-    );
-}
-
-/// Perception with the camera at the tool, looking straight down from 0.5 m at the world
-/// origin, sees a red square at the principal point.
 #[test]
 fn perception_pairs_each_image_with_the_nearest_tool_pose_and_restarts_per_pick() {
     use super::perception::{CameraFrame, PerceptionCycle};
