@@ -418,7 +418,11 @@ impl ArClient {
                 Ok(false)
             }
             Err(e) if e.kind() == io::ErrorKind::Interrupted => Ok(false),
-            Err(e) => Err(self.io_error(e)),
+            Err(e) => match self.io_error(e) {
+                // A reset connection: what is left in the buffer is reported first.
+                ClientError::Closed => Ok(!self.rx.is_empty()),
+                other => Err(other),
+            },
         }
     }
 
