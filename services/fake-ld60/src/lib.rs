@@ -121,7 +121,7 @@ pub struct FakeCounters {
     pub drive_timeouts: u64,
     /// Drives beyond the robot's speed limits.
     pub speed_violations: u64,
-    /// Drives beyond the robot's acceleration limits.
+    /// Drives beyond the robot's acceleration limits (a zero drive, a stop, never counts).
     pub accel_violations: u64,
     /// Bad packets (framing, checksum, payload): the connection is closed.
     pub bad_packets: u64,
@@ -219,12 +219,13 @@ impl Shared {
                 (s.odometry.v, s.odometry.omega),
             ),
         };
+        // A zero drive is a stop: the robot brakes with its own deceleration, so it is not an
+        // acceleration violation.
+        if (v, w) != (0.0, 0.0)
+            && ((v - v0).abs() > l.accel_v * dt * (1.0 + tol)
+                || (w - w0).abs() > l.accel_omega * dt * (1.0 + tol))
         {
-            if (v - v0).abs() > l.accel_v * dt * (1.0 + tol)
-                || (w - w0).abs() > l.accel_omega * dt * (1.0 + tol)
-            {
-                s.counters.accel_violations += 1;
-            }
+            s.counters.accel_violations += 1;
         }
         s.last_velocity = (v, w);
         s.last_drive_at = Some(now);
