@@ -113,7 +113,7 @@ fn frankie_reference_as_json() {
             );
         }
     }
-    // Base columns (ALGORITHMS.md §1): ω column [−p.y, p.x, 0, 0, 0, 1], v column [1, 0, 0, 0, 0, 0].
+    // Base columns (docs/algorithms.md §1): ω column [−p.y, p.x, 0, 0, 0, 1], v column [1, 0, 0, 0, 0, 0].
     let column = |c: usize| -> Vec<f64> { jacobian.iter().map(|row| row[c]).collect() };
     let expected_omega = [-p[1], p[0], 0.0, 0.0, 0.0, 1.0];
     let expected_v = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0];

@@ -118,11 +118,9 @@ fn run(setup: &ServiceSetup, limits: ResolverCycleConfig) -> Result<(), motm_bus
         // A failed publish shows as a gap that the drivers and the watchdog act on.
         let _ = arm_out.publish(convert::arm_command(&out.resolved.arm_qd));
         let _ = base_out.publish(convert::base_command(&out.resolved.base));
-        let _ = status_out.publish(convert::qp_status(
-            &out.resolved,
-            solve_ns,
-            snapshot.image_stamp_ns,
-        ));
+        let mut status = convert::qp_status(&out.resolved, solve_ns, snapshot.image_stamp_ns);
+        status.twist = out.twist.into();
+        let _ = status_out.publish(status);
         Flow::Continue
     })?;
     let details = format!(

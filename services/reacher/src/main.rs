@@ -45,6 +45,7 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
     // During a hot swap two final-phase controllers publish: follow the active one only.
     let mut active =
         Latest::<msgs::ActiveController>::new(&bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)?;
+    let mut qp_status = Latest::<msgs::QpStatus>::new(&bus, services::CONTROL_QP_STATUS, &qos)?;
     let mut twist_out =
         Publisher::<msgs::TwistCommand>::new(&bus, services::CONTROL_REACH_TWIST, &qos)?;
     let mut reacher = ReacherCycle::new(setup.robot.clone(), setup.config.clone(), setup.dt());
@@ -64,13 +65,12 @@ fn run(setup: &ServiceSetup) -> Result<(), motm_bus::BusError> {
         };
         let _ = active.update();
         let active_id = active.get().map(|a| a.controller_id);
-        while let Ok(Some(m)) = final_twists.receive() {
-            if mission.phase == Phase::Final
-                && m.task_index as usize == mission.task_index
-                && active_id.is_none_or(|id| id == m.controller_id)
-            {
-                reacher.follow(Twist::from(m.twist));
-            }
+        while let Ok(Some(_)) = final_twists.receive() {}
+        let _ = active_id;
+        if let Ok(true) = qp_status.update()
+            && let Some(status) = qp_status.get()
+        {
+            reacher.feedback(Twist::from(status.twist));
         }
         let (Some(measured), Some(target)) = (snapshot.measured, snapshot.target) else {
             return Flow::Continue;

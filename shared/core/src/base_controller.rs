@@ -1,4 +1,4 @@
-//! The MotM base controller (paper section III-B.1; ALGORITHMS.md §2 "Base controller").
+//! The MotM base controller (paper section III-B.1; docs/algorithms.md §2 "Base controller").
 //!
 //! Each step it
 //! 1. computes the closest-approach pose ξ_C: the tangent point from the base to the circle of
@@ -13,7 +13,7 @@
 //! closest-approach circle instead.
 //!
 //! Choices (each a [`BaseControllerConfig`] value where it is a number):
-//! - **Heading of ξ_C**: toward the next target, as ALGORITHMS.md says; the tangent direction is
+//! - **Heading of ξ_C**: toward the next target, as docs/algorithms.md says; the tangent direction is
 //!   the alternative ([`ApproachHeading`]).
 //! - **Side**: for a bend under 90° (direction base→target to direction target→next), the side of
 //!   the line base→target on which the next target lies (the paper's "bends toward N"). For a
@@ -72,7 +72,7 @@ use crate::types::{BaseVelocity, TargetEstimate, wrap_angle};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum ApproachHeading {
-    /// Toward the next target, as in ALGORITHMS.md (the default): the base is already turning
+    /// Toward the next target, as in docs/algorithms.md (the default): the base is already turning
     /// toward the next target as it goes by.
     #[default]
     TowardNext,
@@ -698,7 +698,7 @@ mod tests {
         }
     }
 
-    /// Integrates a unicycle as ALGORITHMS.md §1 says: rotate by ω·dt, then move v·dt along the
+    /// Integrates a unicycle as docs/algorithms.md §1 says: rotate by ω·dt, then move v·dt along the
     /// new heading.
     fn integrate(base: &mut BasePose, command: BaseVelocity, dt: f64) {
         base.yaw = wrap_angle(base.yaw + command.omega * dt);

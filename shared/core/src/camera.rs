@@ -40,7 +40,7 @@ impl MountPose {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
-    /// Image width, pixels. Default 320 (ALGORITHMS.md §4): at 0.5 m a 30 mm cube then covers
+    /// Image width, pixels. Default 320 (docs/algorithms.md §4): at 0.5 m a 30 mm cube then covers
     /// about 6×6 pixels, enough for a centroid good to a millimetre, and a frame renders in about
     /// a millisecond.
     pub width: u32,
@@ -65,7 +65,7 @@ pub struct CameraConfig {
     /// Time from exposure to the image being available to perception, s. Default 0.03 (about
     /// one frame at 30 Hz, typical of a USB camera).
     pub latency: f64,
-    /// Frame rate, Hz. Default 30 (DESIGN.md, perception runs at camera rate).
+    /// Frame rate, Hz. Default 30 (docs/architecture.md: perception runs on each camera frame).
     pub rate_hz: f64,
 }
 

@@ -1,4 +1,4 @@
-//! Hot swap of a task controller (DESIGN.md "Supervisor, watchdog, hot swap"): the supervisor
+//! Hot swap of a task controller (docs/architecture.md, "Supervisor, watchdog, hot swap"): the supervisor
 //! starts the new controller process beside the old one, waits for the new one's heartbeat and
 //! its first command sample, flips the active-controller id (which every consumer filters on),
 //! then stops the old one. This module is the pure part: the sequence as a step function on

@@ -1,4 +1,4 @@
-//! Cube perception from the palm camera (paper section III-B, ALGORITHMS.md §4).
+//! Cube perception from the palm camera (paper section III-B, docs/algorithms.md §4).
 //!
 //! Each image is thresholded for red pixels; the red pixels are grouped into connected blobs
 //! (8-connectivity); the centroid of the chosen blob is un-projected through the calibration to a

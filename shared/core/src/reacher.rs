@@ -1,4 +1,4 @@
-//! The MotM reacher (paper section III-B.2; ALGORITHMS.md §2 "Reacher").
+//! The MotM reacher (paper section III-B.2; docs/algorithms.md §2 "Reacher").
 //!
 //! Until the arm has to start, the tool holds its ready pose relative to the base. The arm starts
 //! when the time until the base is in manipulation range, t_R (from the base controller), is no

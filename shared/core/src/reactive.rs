@@ -1,4 +1,4 @@
-//! The reactive baseline's task sequence ("stop and grasp", ALGORITHMS.md §3): the holistic
+//! The reactive baseline's task sequence ("stop and grasp", docs/algorithms.md §3): the holistic
 //! controller of [`crate::holistic`] servoes the tool through fixed stages per task.
 //!
 //! - **Pick:** servo above the cube, descend onto it, close (servoing on), lift to a waypoint

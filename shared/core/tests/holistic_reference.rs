@@ -1,5 +1,5 @@
 //! Reproduces the reference run of robotics-toolbox-python's `holistic_mm_non_holonomic.py`
-//! (ALGORITHMS.md §2): Frankie at qr, target fkine(qr)·Rz(π) with rotation diag(−1, 1, −1),
+//! (docs/algorithms.md §2): Frankie at qr, target fkine(qr)·Rz(π) with rotation diag(−1, 1, −1),
 //! x − 4.0 and z − 0.25, i.e. (−3.366, 0, 0.5426); the reference arrives (e_t < 0.02) in 252
 //! steps at dt = 0.025.
 
@@ -17,7 +17,7 @@ fn frankie() -> Robot {
     Robot::load(&config_dir, "frankie").expect("frankie model")
 }
 
-/// Rotate by ω·dt, then move v·dt along the new heading (ALGORITHMS.md §1).
+/// Rotate by ω·dt, then move v·dt along the new heading (docs/algorithms.md §1).
 fn integrate_base(base: &BasePose, velocity: &BaseVelocity, dt: f64) -> BasePose {
     let yaw = base.yaw + velocity.omega * dt;
     BasePose::new(

@@ -121,7 +121,7 @@ fn jacobian_matches_finite_differences_for_every_robot() {
 
 #[test]
 fn base_columns_follow_the_algorithms_formulas() {
-    // ALGORITHMS.md §1: with the virtual joints at zero, col ω = [−(p.y − b.y), p.x − b.x, 0, 0, 0, 1]
+    // docs/algorithms.md §1: with the virtual joints at zero, col ω = [−(p.y − b.y), p.x − b.x, 0, 0, 0, 1]
     // and col v = [cos θ, sin θ, 0, 0, 0, 0].
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     for name in ROBOT_NAMES {

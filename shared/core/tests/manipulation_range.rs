@@ -1,7 +1,7 @@
 //! Each robot's `manipulability_threshold` and `manipulation_range`, checked against its model
 //! with [`motm_core::reach_range`].
 //!
-//! Definition (ALGORITHMS.md §2, base controller): the horizontal distance from the arm base
+//! Definition (docs/algorithms.md §2, base controller): the horizontal distance from the arm base
 //! (`reach_range::arm_base_in_base_frame`, the frame of the first arm joint) within which a
 //! top-down grasp at table height (0.45 m, the cube centre of the scenarios) reaches arm
 //! manipulability above the robot's threshold.
@@ -18,7 +18,7 @@ use motm_core::{ROBOT_NAMES, Robot};
 
 use common::load;
 
-/// Height of the grasp point (the cube centre in the scenarios of DESIGN.md), m.
+/// Height of the grasp point (the cube centre in the scenarios of config/scenarios), m.
 const TABLE_HEIGHT: f64 = 0.45;
 
 /// The best top-down manipulability at table height over distances ahead of the arm base.

@@ -13,7 +13,8 @@
 //! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
 //! self-check, always 0) and `max_command_gap_ns`.
 //!
-//! Backends: only `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services).
+//! Backends: `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services); the base
+//! driver also has `arnl` (Omron LD-60) and `can` (AgileX), whose loop is in `ld60-driver`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -45,6 +46,10 @@ pub const EXIT_FAILED: u8 = 1;
 pub enum Backend {
     /// The simulated hardware: sim-world's `motm/v1/hw/*` services.
     Sim,
+    /// An Omron LD-60 over ArNetworking (TCP 7272) and ARCL (TCP 7171): `ld60-driver` only.
+    Arnl,
+    /// An AgileX base over CAN (protocol v2): `ld60-driver` only.
+    Can,
 }
 
 /// Flags common to both drivers.

@@ -8,7 +8,7 @@ use crate::{Header, Message, RejectReason, Rejection};
 /// Largest arm supported by the fixed-size joint arrays (Panda and Fetch: 7, UR5: 6).
 pub const MAX_ARM_JOINTS: usize = 7;
 
-/// Palm camera image width, pixels (ALGORITHMS.md: 320×240 RGB8).
+/// Palm camera image width, pixels (docs/algorithms.md: 320×240 RGB8).
 pub const CAMERA_WIDTH: usize = 320;
 /// Palm camera image height, pixels.
 pub const CAMERA_HEIGHT: usize = 240;

@@ -1,5 +1,5 @@
 //! The grasp model: whether a closing gripper catches a cube, decided by geometry over the whole
-//! closure (ALGORITHMS.md §4), and whether the gripper hits a cube it is not grasping.
+//! closure (docs/algorithms.md §4), and whether the gripper hits a cube it is not grasping.
 //!
 //! A grasp succeeds only if the cube is in the grasp window from the moment the fingers start
 //! closing until they reach it:

@@ -1,5 +1,5 @@
 //! Scenario files: the robot, its start pose and speed, the objects to pick and where to drop
-//! them, and the noise of the simulated world (DESIGN.md, "Scenario file").
+//! them, and the noise of the simulated world (docs/architecture.md, "Scenario file").
 //!
 //! ```toml
 //! name = "exp1-dynamic"
@@ -27,7 +27,7 @@
 //! latency = 0.01                    # s
 //! ```
 //!
-//! `[[buttons]]` is the one addition to the DESIGN.md format: a scenario with a button to press,
+//! `[[buttons]]` is the one addition to the format of docs/architecture.md: a scenario with a button to press,
 //! for the swappable final-phase controller. Unknown keys, missing required keys and bad values
 //! are errors that name the file and the key, e.g. `exp1.toml: objects[0].speed: must be > 0`.
 

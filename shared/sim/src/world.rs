@@ -1,5 +1,5 @@
 //! The simulated world: a kinematic mobile manipulator with realistic imperfections, cubes on
-//! platforms, containers, buttons, a gripper and its grasp model (ALGORITHMS.md §4).
+//! platforms, containers, buttons, a gripper and its grasp model (docs/algorithms.md §4).
 //!
 //! [`World::step`] is a pure step function: it integrates the world by `dt` seconds under one
 //! [`HardwareCommand`], in physics sub-steps of at most `1 / physics_rate_hz` (1 kHz). The robot
@@ -799,7 +799,7 @@ impl World {
 }
 
 /// Integrates a planar pose by one step: turn by ω·h, then move v·h along the new heading
-/// (ALGORITHMS.md §1).
+/// (docs/algorithms.md §1).
 fn advance_pose(pose: &mut BasePose, velocity: BaseVelocity, h: f64) {
     pose.yaw = motm_core::wrap_angle(pose.yaw + velocity.omega * h);
     pose.x += velocity.v * h * pose.yaw.cos();

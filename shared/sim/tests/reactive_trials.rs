@@ -1,4 +1,4 @@
-//! Closed-loop trials of the reactive baseline (ALGORITHMS.md §3) with the scenarios' default
+//! Closed-loop trials of the reactive baseline (docs/algorithms.md §3) with the scenarios' default
 //! noise: it must pick the cube and drop it into the container, static or moving.
 
 mod support;

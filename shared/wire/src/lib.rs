@@ -18,8 +18,9 @@
 //! The final phase reports its task as done with `TwistCommand::progress == Done` (and the
 //! task's index); the mission's supervisor advances on that.
 
+pub mod controllers;
 pub mod inputs;
 pub mod setup;
 
-pub use motm_tasks::{controllers, convert};
+pub use motm_tasks::convert;
 pub use setup::{ServiceArgs, ServiceSetup, exit_on_error, report_exit};

@@ -1,4 +1,4 @@
-//! Press a button from above, then retract (ALGORITHMS.md §2). This controller exists to show
+//! Press a button from above, then retract (docs/algorithms.md §2). This controller exists to show
 //! that the final phase can be swapped without touching the rest of the stack.
 //!
 //! Stages:

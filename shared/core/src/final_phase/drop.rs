@@ -1,4 +1,4 @@
-//! Drop into a container on the move (ALGORITHMS.md §2).
+//! Drop into a container on the move (docs/algorithms.md §2).
 //!
 //! Stages:
 //! 1. [`Approach`](FinalPhaseStage::Approach): servo to the release point, `release_height`

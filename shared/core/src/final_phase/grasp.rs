@@ -1,4 +1,4 @@
-//! Grasp: position-based servoing onto the object, close, lift (ALGORITHMS.md §2).
+//! Grasp: position-based servoing onto the object, close, lift (docs/algorithms.md §2).
 //!
 //! Stages:
 //! 1. [`Approach`](FinalPhaseStage::Approach): servo the tool top-down onto the grasp point

@@ -1,5 +1,5 @@
 //! Final-phase task controllers: the module that owns the arm once the tool is within
-//! d_T of the target (ALGORITHMS.md §2, paper section III-B).
+//! d_T of the target (docs/algorithms.md §2, paper section III-B).
 //!
 //! Every controller implements [`FinalPhaseController`], so the stack can swap one for another at
 //! run time (`motm swap final-phase <variant>`): build the new one with [`build`] and feed it the

@@ -1,4 +1,4 @@
-//! The planning baseline (paper section III-C, ALGORITHMS.md §3): plan once at t = 0, then track
+//! The planning baseline (paper section III-C, docs/algorithms.md §3): plan once at t = 0, then track
 //! the plan open-loop.
 //!
 //! **Planning.** One minimum-acceleration trajectory for the base and the gripper together,
