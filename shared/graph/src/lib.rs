@@ -5,6 +5,7 @@
 //! [`MemBus`], for fast Monte-Carlo trials and tests.
 
 mod membus;
+pub mod replay;
 mod scheduler;
 mod spec;
 mod task;

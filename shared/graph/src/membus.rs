@@ -15,7 +15,8 @@ use std::sync::Arc;
 
 use motm_msgs::{Message, Rejection, Topic};
 
-use crate::task::{Sink, Source, boxed_copy};
+use crate::replay::{RawSample, raw_bytes};
+use crate::task::{Consumed, Sink, Source, boxed_copy, consumed};
 
 /// Identifies one reader of the bus (a scheduled task).
 pub type ReaderId = usize;
@@ -73,6 +74,7 @@ pub struct MemBus {
     delays: HashMap<(&'static str, ReaderId), u64>,
     rejected: u64,
     last_rejection: Option<Rejection>,
+    recorded: Option<Vec<RawSample>>,
 }
 
 impl MemBus {
@@ -115,9 +117,20 @@ impl MemBus {
             .unwrap_or_else(|| panic!("topic {topic:?} used with two payload types"))
     }
 
+    /// Also keeps the raw bytes of every sample published from now on
+    /// ([`MemBus::take_recorded`]), for replay logs.
+    pub fn record_samples(&mut self) {
+        self.recorded.get_or_insert_with(Vec::new);
+    }
+
+    /// The samples recorded since the last call.
+    pub fn take_recorded(&mut self) -> Vec<RawSample> {
+        self.recorded.as_mut().map(std::mem::take).unwrap_or_default()
+    }
+
     /// Publishes `sample` now: the bus assigns the sequence number and stamps a zero stamp
-    /// with the current time.
-    pub fn publish<T: Message>(&mut self, topic: Topic<T>, sample: Arc<T>) {
+    /// with the current time. Returns the sequence number.
+    pub fn publish<T: Message>(&mut self, topic: Topic<T>, sample: Arc<T>) -> u64 {
         let now = self.now_ns;
         let channel = self.channel(topic);
         let mut sample = sample;
@@ -129,8 +142,19 @@ impl MemBus {
         channel.next_seq += 1;
         let index = channel.next_index;
         channel.next_index += 1;
+        let seq = sample.header().seq;
+        if let Some(recorded) = self.recorded.as_mut() {
+            recorded.push(RawSample {
+                topic: topic.name(),
+                seq,
+                stamp_ns: sample.header().stamp_ns,
+                bytes: raw_bytes(sample.as_ref()),
+            });
+        }
+        let channel = self.channel(topic);
         channel.samples.push_back((now, index, sample));
         channel.trim();
+        seq
     }
 
     /// Whether `reader` has an unread sample on `topic` that is visible now.
@@ -187,7 +211,11 @@ impl MemBus {
 
     /// The bus as `reader`'s [`Source`] and as a [`Sink`].
     pub fn port(&mut self, reader: ReaderId) -> MemPort<'_> {
-        MemPort { bus: self, reader }
+        MemPort {
+            bus: self,
+            reader,
+            produced: Vec::new(),
+        }
     }
 }
 
@@ -217,10 +245,19 @@ impl<T: 'static> AnyChannel for Channel<T> {
     }
 }
 
-/// The bus seen by one reader: a [`Source`] and a [`Sink`].
+/// The bus seen by one reader: a [`Source`] and a [`Sink`]. As a sink it notes what it
+/// published ([`MemPort::produced`]).
 pub struct MemPort<'a> {
     bus: &'a mut MemBus,
     reader: ReaderId,
+    produced: Vec<Consumed>,
+}
+
+impl MemPort<'_> {
+    /// The samples published through this port, with the sequence numbers the bus gave them.
+    pub fn produced(self) -> Vec<Consumed> {
+        self.produced
+    }
 }
 
 impl Source for MemPort<'_> {
@@ -243,11 +280,16 @@ impl Source for MemPort<'_> {
 
 impl Sink for MemPort<'_> {
     fn publish<T: Message>(&mut self, topic: Topic<T>, message: &T) {
-        self.bus.publish(topic, Arc::from(boxed_copy(message)));
+        self.publish_shared(topic, Arc::from(boxed_copy(message)));
     }
 
     fn publish_shared<T: Message>(&mut self, topic: Topic<T>, message: Arc<T>) {
-        self.bus.publish(topic, message);
+        let stamp = message.header().stamp_ns;
+        let seq = self.bus.publish(topic, message);
+        let mut record = consumed(topic, &T::zeroed());
+        record.seq = seq;
+        record.stamp_ns = if stamp == 0 { self.bus.now_ns() } else { stamp };
+        self.produced.push(record);
     }
 }
 

@@ -17,6 +17,7 @@ use std::any::Any;
 
 use crate::membus::{MemBus, ReaderId};
 use crate::spec::{TaskSpec, Trigger};
+use crate::replay::{CompareSink, Difference, ReplaySource, SampleIndex};
 use crate::task::{Consumed, PortSet, Task};
 
 /// What one cycle of a task did, for logs and replay.
@@ -30,12 +31,24 @@ pub struct CycleRecord {
     pub now_ns: u64,
     /// The input samples the cycle consumed.
     pub consumed: Vec<Consumed>,
+    /// The samples the cycle published.
+    pub produced: Vec<Consumed>,
+}
+
+/// What replaying one logged cycle of a task gave.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayedCycle {
+    /// The first output field that differs from the log, if any.
+    pub difference: Option<Difference>,
+    /// Consumed samples the log did not hold.
+    pub missing_inputs: usize,
 }
 
 /// A task with its inputs, type-erased for the scheduler.
 trait Scheduled {
     fn name(&self) -> &'static str;
     fn run(&mut self, bus: &mut MemBus, reader: ReaderId, record: Option<&mut Vec<CycleRecord>>);
+    fn replay(&mut self, record: &CycleRecord, index: &SampleIndex) -> ReplayedCycle;
     fn as_any(&self) -> &dyn Any;
     fn as_any_mut(&mut self) -> &mut dyn Any;
 }
@@ -56,6 +69,10 @@ impl<T: Task + 'static> Scheduled for Slot<T> {
         let now = bus.now_ns();
         self.inputs.clear_queues();
         self.inputs.read(&mut bus.port(reader));
+        let outputs = self.task.step(now, &self.inputs);
+        let mut port = bus.port(reader);
+        outputs.write(&mut port);
+        let produced = port.produced();
         if let Some(records) = record {
             let mut consumed = Vec::new();
             self.inputs.held(&mut consumed);
@@ -64,11 +81,29 @@ impl<T: Task + 'static> Scheduled for Slot<T> {
                 cycle: self.cycle,
                 now_ns: now,
                 consumed,
+                produced,
             });
         }
-        let outputs = self.task.step(now, &self.inputs);
-        outputs.write(&mut bus.port(reader));
         self.cycle += 1;
+    }
+
+    fn replay(&mut self, record: &CycleRecord, index: &SampleIndex) -> ReplayedCycle {
+        let mut inputs = T::Inputs::default();
+        let mut source = ReplaySource::new(index, &record.consumed);
+        inputs.read(&mut source);
+        let outputs = self.task.step(record.now_ns, &inputs);
+        let mut published = Vec::new();
+        let mut held = Vec::new();
+        outputs.held(&mut held);
+        published.extend(held.iter().map(|c| c.topic));
+        let mut sink = CompareSink::new(index, &record.produced);
+        outputs.write(&mut sink);
+        sink.finish(&published);
+        self.cycle += 1;
+        ReplayedCycle {
+            difference: sink.difference,
+            missing_inputs: source.missing,
+        }
     }
 
     fn as_any(&self) -> &dyn Any {
@@ -167,6 +202,21 @@ impl Scheduler {
             .iter_mut()
             .find(|e| e.slot.name() == name)
             .and_then(|e| e.slot.as_any_mut().downcast_mut())
+    }
+
+    /// Names of the scheduled tasks, in order.
+    pub fn task_names(&self) -> Vec<&'static str> {
+        self.entries.iter().map(|e| e.slot.name()).collect()
+    }
+
+    /// Replays the logged cycle `record` of its task (fed from `index`), comparing its outputs
+    /// with the logged ones; `None` when no task of that name is scheduled. Replay steps the
+    /// task's own state forward, so cycles must be replayed in order.
+    pub fn replay(&mut self, record: &CycleRecord, index: &SampleIndex) -> Option<ReplayedCycle> {
+        self.entries
+            .iter_mut()
+            .find(|e| e.slot.name() == record.task)
+            .map(|e| e.slot.replay(record, index))
     }
 
     /// Runs the tasks due at the current time, then advances time by one tick.

@@ -131,6 +131,19 @@ pub struct TrialTrace {
     pub containers: Vec<(f64, f64)>,
     /// One row per control cycle, columns as in [`CYCLE_COLUMNS`] (only when asked for).
     pub cycles: Vec<Vec<f64>>,
+    /// The replay log of a MotM trial (only when asked for).
+    #[serde(skip)]
+    pub log: Option<TrialLog>,
+}
+
+/// A MotM trial's replay log: every sample published on the in-memory bus and every task
+/// cycle's record, in order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TrialLog {
+    /// Every sample published, with its raw bytes.
+    pub samples: Vec<motm_graph::replay::RawSample>,
+    /// Every task cycle, in execution order.
+    pub cycles: Vec<motm_graph::CycleRecord>,
 }
 
 /// Column names of [`TrialTrace::cycles`].

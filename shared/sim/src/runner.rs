@@ -35,7 +35,7 @@ use motm_tasks::mission::MissionSequencerTask;
 use motm_tasks::perception::PerceptionTask;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
-use crate::experiment::{Method, TrialResult, TrialTrace};
+use crate::experiment::{Method, TrialLog, TrialResult, TrialTrace};
 use crate::metrics::AccelerationFilterConfig;
 use crate::objects::Button;
 use crate::render::{
@@ -61,6 +61,9 @@ pub struct RunnerConfig {
     pub trace_every: usize,
     /// Also record every control cycle in the trace ([`TrialTrace::cycles`]).
     pub record_cycles: bool,
+    /// Also keep a replay log of a MotM trial in the trace ([`TrialTrace::log`]): every
+    /// sample on the bus and every task cycle's consumed and produced samples.
+    pub record_log: bool,
     /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
     pub camera: CameraConfig,
     /// Perception.
@@ -84,6 +87,7 @@ impl Default for RunnerConfig {
             timeout_per_task: 40.0,
             trace_every: 10,
             record_cycles: false,
+            record_log: false,
             camera: CameraConfig::default(),
             perception: PerceptionConfig::default(),
             acceleration: AccelerationFilterConfig::default(),
@@ -343,8 +347,8 @@ impl Taps {
 }
 
 /// The MotM graph of `scenario`: every task of [`motm_graph::GRAPH`] (but the watchdog, which
-/// watches processes), with `sim` as the hardware.
-fn motm_graph(
+/// watches processes), with `sim` as the hardware. Replay builds the same graph.
+pub fn motm_graph(
     robot: &Robot,
     scenario: &Scenario,
     sim: SimWorld,
@@ -531,6 +535,11 @@ fn run_motm_trial(
     let tasks = scenario.mission_tasks();
     let mut trace = record_trace.then(|| new_trace(&sim, scenario.objects.len()));
     let mut scheduler = motm_graph(robot, scenario, sim, config)?;
+    let mut log = (record_trace && config.record_log).then(|| {
+        scheduler.record_cycles();
+        scheduler.bus().record_samples();
+        TrialLog::default()
+    });
     let physics_step_ns = (config.physics_step * 1e9).round() as u64;
     let control_ticks = ((1.0 / config.control_rate_hz) / config.physics_step)
         .round()
@@ -557,6 +566,10 @@ fn run_motm_trial(
             sim.set_rendering(perceiving || taps.mission.is_none());
         }
         scheduler.tick();
+        if let Some(log) = log.as_mut() {
+            log.samples.extend(scheduler.bus().take_recorded());
+            log.cycles.extend(scheduler.take_records());
+        }
         let control_cycle = tick.is_multiple_of(control_ticks);
         tick += 1;
         if !control_cycle {
@@ -605,6 +618,9 @@ fn run_motm_trial(
         }
     }
     let _ = physics_step_ns;
+    if let (Some(trace), Some(log)) = (trace.as_mut(), log) {
+        trace.log = Some(log);
+    }
     let sim = scheduler
         .task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
         .map(SimWorldTask::sim)
