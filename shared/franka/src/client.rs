@@ -253,8 +253,8 @@ impl FciClient {
             detail: e,
         })?;
         let addr = SocketAddr::new(ip, config.port);
-        let mut tcp = TcpStream::connect_timeout(&addr, config.connect_timeout)
-            .map_err(io("TCP connect"))?;
+        let mut tcp =
+            TcpStream::connect_timeout(&addr, config.connect_timeout).map_err(io("TCP connect"))?;
         tcp.set_nodelay(true).map_err(io("TCP setup"))?;
         let local = tcp.local_addr().map_err(io("TCP setup"))?;
         let udp = UdpSocket::bind(SocketAddr::new(local.ip(), 0)).map_err(io("UDP bind"))?;
@@ -609,7 +609,12 @@ impl FciClient {
         };
         match response {
             Response::Move(status) if Some(id) == move_id => match (self.motion, status) {
-                (Motion::Starting { command_id, waited, .. }, MoveStatus::MotionStarted) => {
+                (
+                    Motion::Starting {
+                        command_id, waited, ..
+                    },
+                    MoveStatus::MotionStarted,
+                ) => {
                     self.motion = Motion::Starting {
                         command_id,
                         started: true,
@@ -775,7 +780,11 @@ impl FciClient {
         };
         if let Motion::Stopping { command_id } = self.motion {
             let v = self.config.finish_velocity;
-            if dq_c.iter().chain(self.state.dq_d.iter()).all(|x| x.abs() < v) {
+            if dq_c
+                .iter()
+                .chain(self.state.dq_d.iter())
+                .all(|x| x.abs() < v)
+            {
                 self.motion = Motion::Finishing { command_id };
             }
         }

@@ -716,8 +716,9 @@ impl HandPhysics for IdealHand {
                 ..
             } => {
                 let held = self.object_width.is_some_and(|o| goal == o);
-                self.grasped =
-                    held && width - epsilon_inner < self.width && self.width < width + epsilon_outer;
+                self.grasped = held
+                    && width - epsilon_inner < self.width
+                    && self.width < width + epsilon_outer;
                 self.grasped
             }
             _ => (self.width - target).abs() < 1e-3,
@@ -903,7 +904,11 @@ impl FakeHand {
             if read_available(&mut c.stream, &mut c.framer) {
                 loop {
                     let Some(c) = &mut self.client else { break };
-                    match c.framer.next_message().map(|m| m.map(|m| HandRequest::decode(&m))) {
+                    match c
+                        .framer
+                        .next_message()
+                        .map(|m| m.map(|m| HandRequest::decode(&m)))
+                    {
                         Ok(None) => break,
                         Ok(Some(Ok((id, request)))) => self.handle(id, request, hand),
                         Ok(Some(Err(_))) | Err(_) => {

@@ -107,7 +107,11 @@ fn read_hand_header<'a>(
             got: bytes.len(),
         });
     }
-    Ok((command, id, Reader::new(message, &bytes[HAND_HEADER_SIZE..])))
+    Ok((
+        command,
+        id,
+        Reader::new(message, &bytes[HAND_HEADER_SIZE..]),
+    ))
 }
 
 impl HandRequest {

@@ -126,7 +126,11 @@ impl RateLimiter {
         for i in 0..7 {
             let y = g * dq_cmd[i] + (1.0 - g) * dq_d[i];
             out[i] = if self.config.limit_rate {
-                let (j, a_lim, v) = (self.max_jerk[i], self.max_acceleration[i], self.max_velocity[i]);
+                let (j, a_lim, v) = (
+                    self.max_jerk[i],
+                    self.max_acceleration[i],
+                    self.max_velocity[i],
+                );
                 let jerk = ((y - dq_d[i]) / DT - ddq_d[i]) / DT;
                 let a = ddq_d[i] + jerk.clamp(-j, j) * DT;
                 let a_max = (j / a_lim * (v - dq_d[i])).min(a_lim);
@@ -190,9 +194,19 @@ mod tests {
             for i in 0..7 {
                 let na = (out[i] - v[i]) / DT;
                 let jerk = (na - a[i]) / DT;
-                assert!(out[i].abs() <= VELOCITY_LIMIT[i], "k {k} joint {i} v {}", out[i]);
-                assert!(na.abs() <= ACCELERATION_LIMIT[i] + 1e-6, "k {k} joint {i} a {na}");
-                assert!(jerk.abs() <= JERK_LIMIT[i] + 1e-3, "k {k} joint {i} j {jerk}");
+                assert!(
+                    out[i].abs() <= VELOCITY_LIMIT[i],
+                    "k {k} joint {i} v {}",
+                    out[i]
+                );
+                assert!(
+                    na.abs() <= ACCELERATION_LIMIT[i] + 1e-6,
+                    "k {k} joint {i} a {na}"
+                );
+                assert!(
+                    jerk.abs() <= JERK_LIMIT[i] + 1e-3,
+                    "k {k} joint {i} j {jerk}"
+                );
                 a[i] = na;
                 v[i] = out[i];
             }
@@ -215,10 +229,12 @@ mod tests {
         bad[3] = f64::INFINITY;
         assert!(l.limit(&[0.0; 7], &bad, &[0.0; 7]).is_err());
         assert!(l.limit(&[0.0; 7], &[0.0; 7], &bad).is_err());
-        assert!(RateLimiter::new(RateLimitConfig {
-            limit_rate: true,
-            cutoff_hz: 0.0
-        })
-        .is_err());
+        assert!(
+            RateLimiter::new(RateLimitConfig {
+                limit_rate: true,
+                cutoff_hz: 0.0
+            })
+            .is_err()
+        );
     }
 }

@@ -280,7 +280,10 @@ mod tests {
     fn check_layout(fields: &[(&str, usize, usize)], size: usize) {
         let mut at = 0;
         for &(name, offset, len) in fields {
-            assert_eq!(offset, at, "field {name} is not right after the previous one");
+            assert_eq!(
+                offset, at,
+                "field {name} is not right after the previous one"
+            );
             at += len;
         }
         assert_eq!(at, size);
