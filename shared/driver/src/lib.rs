@@ -13,7 +13,8 @@
 //! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
 //! self-check, always 0) and `max_command_gap_ns`.
 //!
-//! Backends: only `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services).
+//! Backends: `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services), and for
+//! the arm `fci`, the Franka Panda and Hand over their own protocols ([`fci`]).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -31,6 +32,8 @@ use motm_sim::Scenario;
 use motm_sim::scenario_path;
 use motm_wire::setup::resolve_config_dir;
 
+pub mod fci;
+
 /// Robot used when neither `--robot` nor `--scenario` names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
 
@@ -45,6 +48,8 @@ pub const EXIT_FAILED: u8 = 1;
 pub enum Backend {
     /// The simulated hardware: sim-world's `motm/v1/hw/*` services.
     Sim,
+    /// The Franka Panda over FCI and the Franka Hand (panda-driver only; see [`fci`]).
+    Fci,
 }
 
 /// Flags common to both drivers.

@@ -956,13 +956,12 @@ impl FakeHand {
     }
 }
 
-/// Runs `cycle` every millisecond (deadline-scheduled; a late cycle is not repeated) until
-/// `stop` returns true.
-pub fn run_every_ms(mut cycle: impl FnMut(), mut stop: impl FnMut() -> bool) {
+/// Runs `cycle` every millisecond (deadline-scheduled; a late cycle is not repeated) while
+/// it returns true.
+pub fn run_every_ms(mut cycle: impl FnMut() -> bool) {
     let period = std::time::Duration::from_millis(1);
     let mut next = std::time::Instant::now();
-    while !stop() {
-        cycle();
+    while cycle() {
         next += period;
         let now = std::time::Instant::now();
         if next > now {

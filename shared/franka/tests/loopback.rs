@@ -39,13 +39,11 @@ impl Fake {
         let thread = std::thread::spawn(move || {
             let mut arm = IdealArm::default();
             let mut fingers = IdealHand::new(0.08, Some(0.03));
-            run_every_ms(
-                || {
-                    robot.cycle(&mut arm);
-                    hand.cycle(&mut fingers);
-                },
-                || flag.load(Ordering::Relaxed),
-            );
+            run_every_ms(|| {
+                robot.cycle(&mut arm);
+                hand.cycle(&mut fingers);
+                !flag.load(Ordering::Relaxed)
+            });
             (robot, hand, arm)
         });
         Self {
