@@ -224,7 +224,7 @@ pub fn run_fci(
             }
         }
         let ended = client.next_state().map_err(lost)?;
-        let arrival = Instant::now();
+        let arrival = client.state_received_at().unwrap_or_else(Instant::now);
         let now_ns = monotonic_now_ns();
         if let Some(end) = ended {
             eprintln!("panda-driver: FCI motion ended: {}", end.describe());

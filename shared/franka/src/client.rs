@@ -241,6 +241,7 @@ pub struct FciClient {
     counters: FciCounters,
     recv_buffer: Box<[u8; 4096]>,
     send_buffer: [u8; RobotCommand::SIZE],
+    received_at: Option<std::time::Instant>,
 }
 
 impl FciClient {
@@ -329,6 +330,7 @@ impl FciClient {
             counters: FciCounters::default(),
             recv_buffer: Box::new([0u8; 4096]),
             send_buffer: [0u8; RobotCommand::SIZE],
+            received_at: None,
         })
     }
 
@@ -375,6 +377,12 @@ impl FciClient {
     /// The answer to the last error recovery request, once it came.
     pub fn recovery(&self) -> Option<RecoveryStatus> {
         self.recovery
+    }
+
+    /// When the newest state's datagram was read from the socket (the start of the cycle's
+    /// latency budget).
+    pub fn state_received_at(&self) -> Option<std::time::Instant> {
+        self.received_at
     }
 
     /// The client's UDP port.
@@ -511,6 +519,7 @@ impl FciClient {
             let r = self.udp.recv_from(&mut self.recv_buffer[..]);
             match r {
                 Ok((n, from)) => {
+                    let at = std::time::Instant::now();
                     if self.robot.port() != 0 && from != self.robot {
                         self.counters.bad_datagrams += 1;
                         continue;
@@ -529,6 +538,7 @@ impl FciClient {
                                 self.counters.skipped_states += 1;
                             }
                             self.robot = from;
+                            self.received_at = Some(at);
                             self.state = state;
                             self.has_state = true;
                             self.counters.states += 1;
