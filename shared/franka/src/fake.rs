@@ -50,8 +50,8 @@ pub struct IdealArm {
 impl ArmPhysics for IdealArm {
     fn step(&mut self, dq_c: &[f64; 7], dt: f64) {
         self.dq = *dq_c;
-        for i in 0..7 {
-            self.q[i] += dq_c[i] * dt;
+        for (q, v) in self.q.iter_mut().zip(dq_c) {
+            *q += v * dt;
         }
     }
     fn joints(&self) -> ([f64; 7], [f64; 7]) {
@@ -513,13 +513,14 @@ impl FakeRobot {
                     return;
                 }
                 // Extrapolate at constant acceleration, within the velocity limit.
-                for i in 0..7 {
-                    let v = self.dq_c[i] + self.ddq_c[i] * DT;
-                    let clamped = v.clamp(-VELOCITY_LIMIT[i], VELOCITY_LIMIT[i]);
-                    if clamped != v {
-                        self.ddq_c[i] = 0.0;
+                let joints = self.dq_c.iter_mut().zip(self.ddq_c.iter_mut());
+                for ((v, a), limit) in joints.zip(VELOCITY_LIMIT) {
+                    let next = *v + *a * DT;
+                    let clamped = next.clamp(-limit, limit);
+                    if clamped != next {
+                        *a = 0.0;
                     }
-                    self.dq_c[i] = clamped;
+                    *v = clamped;
                 }
                 self.motion = FakeMotion::Running { move_id, missed };
             }
@@ -902,8 +903,7 @@ impl FakeHand {
         }
         if let Some(c) = &mut self.client {
             if read_available(&mut c.stream, &mut c.framer) {
-                loop {
-                    let Some(c) = &mut self.client else { break };
+                while let Some(c) = &mut self.client {
                     match c
                         .framer
                         .next_message()

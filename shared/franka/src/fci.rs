@@ -265,7 +265,9 @@ pub struct CollisionBehavior {
     pub upper_force_thresholds_nominal: [f64; 6],
 }
 
-/// An FCI request (client to robot).
+/// An FCI request (client to robot). SetCollisionBehavior makes it large (416 bytes); requests
+/// are rare (never per cycle), so it stays a plain `Copy` value.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Request {
     /// Connect with `version`; the robot streams states to `udp_port`.

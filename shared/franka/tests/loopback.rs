@@ -124,8 +124,8 @@ fn a_full_move_lifecycle_runs_within_the_limits() {
     start_running(&mut client, dq);
     assert_eq!(run(&mut client, dq, 1000), None);
     let s = *client.state();
-    for i in 0..7 {
-        assert!((s.dq[i] - dq[i]).abs() < 1e-3, "joint {i}: {}", s.dq[i]);
+    for (i, want) in dq.iter().enumerate() {
+        assert!((s.dq[i] - want).abs() < 1e-3, "joint {i}: {}", s.dq[i]);
         assert_eq!(s.dq[i], s.dq_d[i], "the ideal arm follows the command");
     }
     assert!(s.control_command_success_rate > 0.5);
