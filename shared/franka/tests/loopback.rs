@@ -217,8 +217,10 @@ fn twenty_five_dropped_commands_raise_a_reflex_that_becomes_a_safe_stop() {
     let (robot, _, _) = fake.finish();
     let rc = robot.counters();
     assert_eq!(rc.reflexes, 1);
-    assert_eq!(rc.dropped, 20, "the reflex comes at the 20th missed cycle");
-    assert!(rc.max_consecutive_missed >= 20);
+    // The reflex comes at the 20th consecutive missed cycle: at most 20 of the 25 planned
+    // drops happen (fewer if a late command of the client's own started the run).
+    assert_eq!(rc.max_consecutive_missed, 20);
+    assert!((15..=20).contains(&rc.dropped), "{}", robot.summary());
     assert_eq!((rc.recoveries, rc.motions, rc.finished), (1, 2, 1));
     assert_eq!(rc.violations.commands, 0, "{}", robot.summary());
 }
