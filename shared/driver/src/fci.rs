@@ -12,7 +12,8 @@
 //! `communication_constraints_violation`) or a robot that is not idle holds the driver in
 //! safe-stop (status mode `SafeStop`, `hardware_ready` 0) and is printed once; only
 //! `--error-recovery` (an explicit user action, once at start) sends AutomaticErrorRecovery.
-//! On SIGTERM/SIGINT the motion is ramped down and finished before the driver exits; the
+//! The systemd notifications (READY=1, WATCHDOG=1) follow completed cycles as in the standard
+//! service loop. On SIGTERM/SIGINT the motion is ramped down and finished before the driver exits; the
 //! latency from each state's arrival to its command being sent is printed then (median, p99,
 //! max).
 
@@ -21,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use motm_bus::{
     Bus, BusError, CycleStats, HeartbeatPublisher, Latest, Publisher, Qos, Subscriber,
-    monotonic_now_ns, percentile,
+    SystemdNotifier, monotonic_now_ns, percentile,
 };
 use motm_core::command_limiter::LimiterMode;
 use motm_core::velocity_driver::VelocityDriver;
@@ -167,6 +168,9 @@ pub fn run_fci(
         Publisher::<motm_msgs::DriverStatus>::new(bus, services::ARM_DRIVER_STATUS, &qos)
             .map_err(failed)?;
     let mut heartbeat = HeartbeatPublisher::new(bus).map_err(failed)?;
+    // systemd readiness and watchdog, as the standard service loop sends them (a no-op outside
+    // systemd): READY=1 after the first completed cycle, WATCHDOG=1 after completed cycles.
+    let mut systemd = SystemdNotifier::from_env();
 
     let lost = |e: motm_franka::FciError| (EXIT_FAILED, e.to_string());
     let config = FciConfig {
@@ -306,6 +310,7 @@ pub fn run_fci(
                 eprintln!("panda-driver: {e}");
             }
         }
+        systemd.iteration_done(monotonic_now_ns());
         let cycle_ns = arrival.elapsed().as_nanos() as u64;
         stats.record(cycle_ns, cycle_ns > 1_000_000, now_ns);
         if last_heartbeat.elapsed() >= Duration::from_millis(100) {
@@ -321,6 +326,7 @@ pub fn run_fci(
         }
         cycle += 1;
     }
+    systemd.stopping();
     let (n, median, p99, max) = latency.summary();
     let c = client.counters();
     eprintln!(
