@@ -185,12 +185,20 @@ fn the_fci_driver_follows_commands_grasps_and_finishes_on_stale_commands() {
                     .is_some_and(|j| j.velocity.iter().all(|v| v.abs() < 1e-9))),
             "the robot never stopped"
         );
+        // Fresh commands again: a new motion.
+        assert!(
+            stack.until(&bus, Some(-0.2), |s| s
+                .joints
+                .get()
+                .is_some_and(|j| j.velocity.iter().all(|v| (v + 0.2).abs() < 1e-3))),
+            "no new motion after the finish"
+        );
         let status = driver.terminate().unwrap();
         assert!(status.success(), "{status:?}");
     }
     let robot = fake.finish();
     let c = robot.counters();
-    assert!(c.motions >= 1 && c.finished >= 1, "{}", robot.summary());
+    assert!(c.motions >= 2 && c.finished >= 2, "{}", robot.summary());
     assert_eq!(c.reflexes, 0, "{}", robot.summary());
     assert_eq!(c.violations.commands, 0, "{}", robot.summary());
     let log = std::fs::read_to_string(&log).unwrap();
