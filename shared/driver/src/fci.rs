@@ -90,25 +90,34 @@ impl FciArgs {
     }
 }
 
-/// Latencies from a state's arrival to its command being sent, ns.
+/// Latencies from a state's arrival to its command being sent, ns: the newest
+/// [`LatencyStats::WINDOW`] in a ring, plus the maximum over all.
 #[derive(Debug, Default, Clone)]
 pub struct LatencyStats {
     samples: Vec<u64>,
+    next: usize,
+    max: u64,
 }
 
 impl LatencyStats {
-    /// Records one latency (the newest 100 000 are kept).
+    /// Samples kept for the percentiles.
+    pub const WINDOW: usize = 100_000;
+
+    /// Records one latency (constant time: the oldest sample is overwritten).
     pub fn record(&mut self, ns: u64) {
-        if self.samples.len() == 100_000 {
-            self.samples.remove(0);
+        self.max = self.max.max(ns);
+        if self.samples.len() < Self::WINDOW {
+            self.samples.push(ns);
+        } else {
+            self.samples[self.next] = ns;
         }
-        self.samples.push(ns);
+        self.next = (self.next + 1) % Self::WINDOW;
     }
 
-    /// `(count, median, p99, max)` in ns.
+    /// `(count, median, p99, max)` in ns (count and percentiles over the window).
     pub fn summary(&self) -> (usize, u64, u64, u64) {
         let mut s = self.samples.clone();
-        let max = s.iter().copied().max().unwrap_or(0);
+        let max = self.max;
         let n = s.len();
         if n == 0 {
             return (0, 0, 0, 0);
