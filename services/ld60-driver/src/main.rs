@@ -95,6 +95,12 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
         BaseConfig::from_file(&BaseConfig::path(&dir, name)).map_err(bad)
     };
     match args.backend {
+        Backend::Fci => {
+            return Err(bad(
+                "--backend fci: the Franka arm's backend; the base driver takes sim, arnl or can"
+                    .into(),
+            ));
+        }
         Backend::Sim => {
             let bus = Bus::open("ld60-driver").map_err(failed)?;
             motm_driver::run_driver::<Base>(&bus, driver, period, status_period, |_, _| {})

@@ -3,6 +3,11 @@
 //! that never exceeds the arm's velocity, acceleration and jerk limits (ramping to zero when
 //! the command goes stale or safe-stop is raised), forwards gripper commands of the active
 //! controller, and re-publishes joint and gripper state.
+//!
+//! `--backend sim` (default): the hardware is sim-world's `motm/v1/hw/*` services.
+//! `--backend fci --robot-ip IP [--fci-port P --hand-port P]`: the Franka Panda over FCI and
+//! the Franka Hand (or `fake-panda`), driven by the robot's 1 kHz states; see
+//! `motm_driver::fci`.
 
 use std::process::ExitCode;
 use std::time::Duration;
@@ -11,7 +16,8 @@ use clap::Parser;
 use motm_bus::{Bus, Latest, Publisher, Qos, Stamp, Subscriber};
 use motm_core::BASE_JOINTS;
 use motm_core::command_limiter::AxisLimits;
-use motm_driver::{DriverArgs, DriverTopics, EXIT_BAD_INPUT, EXIT_FAILED};
+use motm_driver::fci::FciArgs;
+use motm_driver::{Backend, DriverArgs, DriverTopics, EXIT_BAD_INPUT, EXIT_FAILED};
 use motm_msgs::{
     ActiveController, ArmVelocityCommand, GripperCommand, GripperState, JointState, Message,
     services,
@@ -26,6 +32,8 @@ const DEFAULT_RATE_HZ: f64 = 1000.0;
 struct Cli {
     #[command(flatten)]
     driver: DriverArgs,
+    #[command(flatten)]
+    fci: FciArgs,
 }
 
 /// The arm's services and conversions.
@@ -78,6 +86,26 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
     let driver = args.driver(limits, period).map_err(bad)?;
     let failed = |e: motm_bus::BusError| (EXIT_FAILED, e.to_string());
     let bus = Bus::open("panda-driver").map_err(failed)?;
+    let status_period = Duration::from_secs_f64(1.0 / args.status_rate);
+    match args.backend {
+        Backend::Fci => {
+            return motm_driver::fci::run_fci(
+                &bus,
+                driver,
+                status_period,
+                &cli.fci,
+                forward_gripper,
+            );
+        }
+        Backend::Arnl | Backend::Can => {
+            return Err(bad(format!(
+                "--backend {:?}: a base backend; the arm driver takes sim or fci",
+                args.backend
+            )
+            .to_lowercase()));
+        }
+        Backend::Sim => {}
+    }
     let qos = Qos::default();
     let mut gripper_in =
         Subscriber::<GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos)
@@ -92,7 +120,6 @@ fn run(cli: Cli) -> Result<(), (u8, String)> {
     let mut gripper_state =
         Publisher::<GripperState>::new(&bus, services::ARM_GRIPPER_STATE, &qos.waking())
             .map_err(failed)?;
-    let status_period = Duration::from_secs_f64(1.0 / args.status_rate);
     motm_driver::run_driver::<Arm>(&bus, driver, period, status_period, |_, safe_stop| {
         active.update().ok();
         while let Ok(Some(command)) = gripper_in.receive() {

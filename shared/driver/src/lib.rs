@@ -13,8 +13,9 @@
 //! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
 //! self-check, always 0) and `max_command_gap_ns`.
 //!
-//! Backends: `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services); the base
-//! driver also has `arnl` (Omron LD-60) and `can` (AgileX), whose loop is in `ld60-driver`.
+//! Backends: `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services); for the
+//! arm `fci`, the Franka Panda and Hand over their own protocols ([`fci`]); for the base
+//! `arnl` (Omron LD-60) and `can` (AgileX), whose loop is in `ld60-driver`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -31,6 +32,8 @@ use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
 use motm_sim::Scenario;
 use motm_sim::scenario_path;
 use motm_wire::setup::resolve_config_dir;
+
+pub mod fci;
 
 /// Robot used when neither `--robot` nor `--scenario` names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
@@ -50,6 +53,8 @@ pub enum Backend {
     Arnl,
     /// An AgileX base over CAN (protocol v2): `ld60-driver` only.
     Can,
+    /// The Franka Panda over FCI and the Franka Hand (panda-driver only; see [`fci`]).
+    Fci,
 }
 
 /// Flags common to both drivers.

@@ -125,7 +125,10 @@ impl MemBus {
 
     /// The samples recorded since the last call.
     pub fn take_recorded(&mut self) -> Vec<RawSample> {
-        self.recorded.as_mut().map(std::mem::take).unwrap_or_default()
+        self.recorded
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// Publishes `sample` now: the bus assigns the sequence number and stamps a zero stamp

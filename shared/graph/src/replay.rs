@@ -190,7 +190,10 @@ impl<'a> CompareSink<'a> {
             });
             return;
         };
-        let (a, b) = (leaves(&format!("{logged:?}")), leaves(&format!("{replayed:?}")));
+        let (a, b) = (
+            leaves(&format!("{logged:?}")),
+            leaves(&format!("{replayed:?}")),
+        );
         for ((path, x), (_, y)) in a.iter().zip(&b) {
             if x != y && !ignored(path) {
                 self.difference = Some(Difference {
@@ -240,7 +243,11 @@ pub fn leaves(debug: &str) -> Vec<(String, String)> {
     let mut index: Vec<Option<usize>> = Vec::new();
     let mut key = String::new();
     let mut token = String::new();
-    let flush = |token: &mut String, path: &[String], index: &[Option<usize>], key: &str, out: &mut Vec<(String, String)>| {
+    let flush = |token: &mut String,
+                 path: &[String],
+                 index: &[Option<usize>],
+                 key: &str,
+                 out: &mut Vec<(String, String)>| {
         let value = token.trim();
         if value.is_empty() {
             return;

@@ -16,8 +16,8 @@
 use std::any::Any;
 
 use crate::membus::{MemBus, ReaderId};
-use crate::spec::{TaskSpec, Trigger};
 use crate::replay::{CompareSink, Difference, ReplaySource, SampleIndex};
+use crate::spec::{TaskSpec, Trigger};
 use crate::task::{Consumed, PortSet, Task};
 
 /// What one cycle of a task did, for logs and replay.

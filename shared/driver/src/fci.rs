@@ -1,0 +1,384 @@
+//! The `fci` backend of panda-driver: the real Franka Panda over FCI (or `fake-panda`), and the
+//! Franka Hand. The robot is the clock: each cycle starts when a `RobotState` arrives, steps
+//! the same [`VelocityDriver`] as the sim backend (the stack's limits, staleness and
+//! safe-stop), passes its output through libfranka's low-pass filter and rate limiter
+//! (in [`motm_franka::FciClient::command`]) and answers the state with one command. It
+//! publishes `ARM_JOINT_STATE` (the robot's `q`, `dq`, waking), `ARM_GRIPPER_STATE` (each hand
+//! state, waking) and `ARM_DRIVER_STATUS` like the sim backend, plus the heartbeat.
+//!
+//! Motions: a joint-velocity motion starts when the driver is tracking a fresh command and the
+//! robot is idle; when the driver's output has ramped to zero (stale command or safe-stop) the
+//! motion is finished, and a later fresh command starts a new one. A reflex (e.g.
+//! `communication_constraints_violation`) or a robot that is not idle holds the driver in
+//! safe-stop (status mode `SafeStop`, `hardware_ready` 0) and is printed once; only
+//! `--error-recovery` (an explicit user action, once at start) sends AutomaticErrorRecovery.
+//! The systemd notifications (READY=1, WATCHDOG=1) follow completed cycles as in the standard
+//! service loop. On SIGTERM/SIGINT the motion is ramped down and finished before the driver exits; the
+//! latency from each state's arrival to its command being sent is printed then (median, p99,
+//! max).
+
+use std::net::IpAddr;
+use std::time::{Duration, Instant};
+
+use motm_bus::{
+    Bus, BusError, CycleStats, HeartbeatPublisher, Latest, Publisher, Qos, Subscriber,
+    SystemdNotifier, monotonic_now_ns, percentile,
+};
+use motm_core::command_limiter::LimiterMode;
+use motm_core::velocity_driver::VelocityDriver;
+use motm_franka::fci::FCI_PORT;
+use motm_franka::hand::{HAND_PORT, HandClient, HandConfig};
+use motm_franka::{FciClient, FciConfig, Motion};
+use motm_msgs::{
+    ActiveController, ArmVelocityCommand, DriverMode, GripperAction, GripperCommand, GripperState,
+    JointState, Message, ProcessState, SafeStop, services,
+};
+
+use crate::{EXIT_BAD_INPUT, EXIT_FAILED, status_message};
+
+/// Flags of the `fci` backend.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FciArgs {
+    /// The robot's (FCI) address; required with `--backend fci`.
+    #[arg(long)]
+    pub robot_ip: Option<IpAddr>,
+    /// The robot's FCI TCP port.
+    #[arg(long, default_value_t = FCI_PORT)]
+    pub fci_port: u16,
+    /// The Franka Hand's TCP port.
+    #[arg(long, default_value_t = HAND_PORT)]
+    pub hand_port: u16,
+    /// Run without the Franka Hand.
+    #[arg(long)]
+    pub no_hand: bool,
+    /// Send one AutomaticErrorRecovery at start (an explicit user action; never automatic).
+    #[arg(long)]
+    pub error_recovery: bool,
+    /// Close (Grasp): expected object width, m.
+    #[arg(long, default_value_t = HandConfig::default().grasp_width)]
+    pub grasp_width: f64,
+    /// Close (Grasp): inner tolerance, m.
+    #[arg(long, default_value_t = HandConfig::default().epsilon_inner)]
+    pub grasp_epsilon_inner: f64,
+    /// Close (Grasp): outer tolerance, m.
+    #[arg(long, default_value_t = HandConfig::default().epsilon_outer)]
+    pub grasp_epsilon_outer: f64,
+    /// Close (Grasp): force, N.
+    #[arg(long, default_value_t = HandConfig::default().force)]
+    pub grasp_force: f64,
+    /// Open (Move): width, m.
+    #[arg(long, default_value_t = HandConfig::default().open_width)]
+    pub open_width: f64,
+    /// Speed of Open and Close, m/s.
+    #[arg(long, default_value_t = HandConfig::default().speed)]
+    pub gripper_speed: f64,
+}
+
+impl FciArgs {
+    /// The hand settings from the flags.
+    pub fn hand_config(&self) -> HandConfig {
+        HandConfig {
+            port: self.hand_port,
+            open_width: self.open_width,
+            speed: self.gripper_speed,
+            grasp_width: self.grasp_width,
+            epsilon_inner: self.grasp_epsilon_inner,
+            epsilon_outer: self.grasp_epsilon_outer,
+            force: self.grasp_force,
+            ..HandConfig::default()
+        }
+    }
+}
+
+/// Latencies from a state's arrival to its command being sent, ns: the newest
+/// [`LatencyStats::WINDOW`] in a ring, plus the maximum over all.
+#[derive(Debug, Default, Clone)]
+pub struct LatencyStats {
+    samples: Vec<u64>,
+    next: usize,
+    max: u64,
+}
+
+impl LatencyStats {
+    /// Samples kept for the percentiles.
+    pub const WINDOW: usize = 100_000;
+
+    /// Records one latency (constant time: the oldest sample is overwritten).
+    pub fn record(&mut self, ns: u64) {
+        self.max = self.max.max(ns);
+        if self.samples.len() < Self::WINDOW {
+            self.samples.push(ns);
+        } else {
+            self.samples[self.next] = ns;
+        }
+        self.next = (self.next + 1) % Self::WINDOW;
+    }
+
+    /// `(count, median, p99, max)` in ns (count and percentiles over the window).
+    pub fn summary(&self) -> (usize, u64, u64, u64) {
+        let mut s = self.samples.clone();
+        let max = self.max;
+        let n = s.len();
+        if n == 0 {
+            return (0, 0, 0, 0);
+        }
+        let median = percentile(&mut s, 50.0);
+        let p99 = percentile(&mut s, 99.0);
+        (n, median, p99, max)
+    }
+}
+
+/// Whether the driver should finish the running motion: it is not tracking and its output
+/// is zero.
+pub fn should_finish(mode: LimiterMode, velocity: &[f64; 7]) -> bool {
+    mode != LimiterMode::Tracking && velocity.iter().all(|v| *v == 0.0)
+}
+
+/// Runs the FCI driver until SIGTERM/SIGINT or a fatal connection error. `forward` decides
+/// whether a gripper command goes to the hand (active controller, no safe-stop).
+pub fn run_fci(
+    bus: &Bus,
+    mut driver: VelocityDriver,
+    status_period: Duration,
+    args: &FciArgs,
+    forward: impl Fn(&GripperCommand, Option<&ActiveController>, bool) -> bool,
+) -> Result<(), (u8, String)> {
+    let ip = args
+        .robot_ip
+        .ok_or((EXIT_BAD_INPUT, "--backend fci needs --robot-ip".to_owned()))?;
+    if driver.axes() != 7 {
+        return Err((
+            EXIT_BAD_INPUT,
+            format!(
+                "the FCI backend drives 7 joints, the robot has {}",
+                driver.axes()
+            ),
+        ));
+    }
+    let failed = |e: BusError| (EXIT_FAILED, e.to_string());
+    let qos = Qos::default();
+    let mut commands =
+        Subscriber::<ArmVelocityCommand>::new(bus, services::ARM_VELOCITY_COMMAND, &qos)
+            .map_err(failed)?;
+    let mut safe_stop =
+        Latest::<SafeStop>::new(bus, services::SAFETY_SAFE_STOP, &qos).map_err(failed)?;
+    let mut gripper_in =
+        Subscriber::<GripperCommand>::new(bus, services::ARM_GRIPPER_COMMAND, &qos)
+            .map_err(failed)?;
+    let mut active =
+        Latest::<ActiveController>::new(bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)
+            .map_err(failed)?;
+    let mut joint_out = Publisher::<JointState>::new(bus, services::ARM_JOINT_STATE, &qos.waking())
+        .map_err(failed)?;
+    let mut gripper_out =
+        Publisher::<GripperState>::new(bus, services::ARM_GRIPPER_STATE, &qos.waking())
+            .map_err(failed)?;
+    let mut status_out =
+        Publisher::<motm_msgs::DriverStatus>::new(bus, services::ARM_DRIVER_STATUS, &qos)
+            .map_err(failed)?;
+    let mut heartbeat = HeartbeatPublisher::new(bus).map_err(failed)?;
+    // systemd readiness and watchdog, as the standard service loop sends them (a no-op outside
+    // systemd): READY=1 after the first completed cycle, WATCHDOG=1 after completed cycles.
+    let mut systemd = SystemdNotifier::from_env();
+
+    let lost = |e: motm_franka::FciError| (EXIT_FAILED, e.to_string());
+    let config = FciConfig {
+        port: args.fci_port,
+        ..FciConfig::default()
+    };
+    let mut client = FciClient::connect(ip, config).map_err(lost)?;
+    let mut hand = if args.no_hand {
+        None
+    } else {
+        Some(
+            HandClient::connect(ip, args.hand_config())
+                .map_err(|e| (EXIT_FAILED, e.to_string()))?,
+        )
+    };
+    eprintln!(
+        "panda-driver: connected to the robot at {ip}:{} (FCI v5){}",
+        args.fci_port,
+        if hand.is_some() { " and its hand" } else { "" }
+    );
+    if args.error_recovery {
+        while !client.has_state() {
+            client.next_state().map_err(lost)?;
+        }
+        client.request_error_recovery().map_err(lost)?;
+        for _ in 0..10_000 {
+            client.next_state().map_err(lost)?;
+            if client.recovery().is_some() {
+                break;
+            }
+        }
+        eprintln!(
+            "panda-driver: AutomaticErrorRecovery: {:?}",
+            client.recovery()
+        );
+    }
+
+    let status_every = (status_period.as_secs_f64() * 1000.0).round().max(1.0) as u64;
+    let mut latency = LatencyStats::default();
+    let mut stats = CycleStats::new(2000);
+    let mut values = Vec::with_capacity(8);
+    let mut cycle = 0u64;
+    let mut last_heartbeat = Instant::now();
+    let mut reported_blocked = false;
+    let mut stopping_for_exit = false;
+    let mut exit_states = 0u32;
+    loop {
+        if !stopping_for_exit && iceoryx2_bb_posix::signal::SignalHandler::termination_requested() {
+            stopping_for_exit = true;
+        }
+        if stopping_for_exit {
+            exit_states += 1;
+            if client.motion() == Motion::Idle || exit_states > 5000 {
+                break;
+            }
+        }
+        let ended = client.next_state().map_err(lost)?;
+        let arrival = client.state_received_at().unwrap_or_else(Instant::now);
+        let now_ns = monotonic_now_ns();
+        if let Some(end) = ended {
+            eprintln!("panda-driver: FCI motion ended: {}", end.describe());
+        }
+        while let Ok(Some(command)) = commands.receive() {
+            values.clear();
+            values.extend_from_slice(&command.velocity[..command.joint_count as usize]);
+            driver.receive(command.header().stamp_ns, &values);
+        }
+        safe_stop.update().ok();
+        let state = *client.state();
+        // The robot takes no motion unless it is idle or moving: a reflex or a user stop holds
+        // the driver in safe-stop until the robot is idle again.
+        let blocked = !(state.idle() || state.joint_velocity_motion_running());
+        if blocked && !reported_blocked {
+            let errors: Vec<usize> = state.active_errors().collect();
+            eprintln!(
+                "panda-driver: the robot is not commandable (robot_mode {}, errors {errors:?}); safe-stop held",
+                state.robot_mode
+            );
+        }
+        reported_blocked = blocked;
+        let stopped =
+            stopping_for_exit || blocked || safe_stop.get().is_some_and(|s| s.active == 1);
+        let mut velocity = [0.0; 7];
+        if let Some(v) = driver.step(now_ns, stopped, Some(&state.dq)) {
+            velocity.copy_from_slice(v);
+        }
+        let mode = driver.counters().mode;
+        match client.motion() {
+            Motion::Idle if mode == LimiterMode::Tracking && !stopped && state.idle() => {
+                if let Err(e) = client.start_motion() {
+                    eprintln!("panda-driver: {e}");
+                }
+            }
+            Motion::Running { .. } if should_finish(mode, &velocity) => client.finish(),
+            _ => {}
+        }
+        if client.command(&velocity).map_err(lost)?.is_some() {
+            latency.record(arrival.elapsed().as_nanos() as u64);
+        }
+        let mut joints = JointState::zeroed();
+        joints.joint_count = 7;
+        joints.position = state.q;
+        joints.velocity = state.dq;
+        if let Err(e) = joint_out.publish(joints) {
+            eprintln!("panda-driver: {e}");
+        }
+        if let Some(hand) = &mut hand {
+            active.update().ok();
+            while let Ok(Some(command)) = gripper_in.receive() {
+                if !forward(&command, active.get(), stopped) {
+                    continue;
+                }
+                let request = match command.action() {
+                    Some(GripperAction::Open) => hand.open_request(),
+                    Some(GripperAction::Close) => hand.close_request(),
+                    None => continue,
+                };
+                hand.request(request)
+                    .map_err(|e| (EXIT_FAILED, e.to_string()))?;
+            }
+            if let Some(s) = hand.poll().map_err(|e| (EXIT_FAILED, e.to_string()))? {
+                let mut m = GripperState::zeroed();
+                m.width = s.width.clamp(0.0, 0.2);
+                m.grasping = s.is_grasped.into();
+                if let Err(e) = gripper_out.publish(m) {
+                    eprintln!("panda-driver: {e}");
+                }
+            }
+        }
+        if cycle.is_multiple_of(status_every) {
+            let mut status = status_message(&driver.counters());
+            if blocked {
+                status.mode = DriverMode::SafeStop.into();
+                status.hardware_ready = 0;
+            }
+            if let Err(e) = status_out.publish(status) {
+                eprintln!("panda-driver: {e}");
+            }
+        }
+        systemd.iteration_done(monotonic_now_ns());
+        let cycle_ns = arrival.elapsed().as_nanos() as u64;
+        stats.record(cycle_ns, cycle_ns > 1_000_000, now_ns);
+        if last_heartbeat.elapsed() >= Duration::from_millis(100) {
+            last_heartbeat = Instant::now();
+            heartbeat
+                .publish(
+                    ProcessState::Running,
+                    &mut stats,
+                    1_000_000,
+                    bus.rejected_messages(),
+                )
+                .ok();
+        }
+        cycle += 1;
+    }
+    systemd.stopping();
+    let (n, median, p99, max) = latency.summary();
+    let c = client.counters();
+    eprintln!(
+        "panda-driver: FCI exit: {} states, {} lost, {} bad datagrams, {} commands, {} motions, {} reflexes, {} safe stops; state-to-command latency over {n}: median {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+        c.states,
+        c.lost_states,
+        c.bad_datagrams,
+        c.commands_sent,
+        c.motions,
+        c.reflexes,
+        c.safe_stops,
+        median as f64 / 1e3,
+        p99 as f64 / 1e3,
+        max as f64 / 1e3
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_motion_finishes_only_at_zero_when_not_tracking() {
+        assert!(!should_finish(LimiterMode::Tracking, &[0.0; 7]));
+        assert!(!should_finish(
+            LimiterMode::Stale,
+            &[0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0]
+        ));
+        assert!(should_finish(LimiterMode::Stale, &[0.0; 7]));
+        assert!(should_finish(LimiterMode::SafeStop, &[0.0; 7]));
+    }
+
+    #[test]
+    fn latency_percentiles() {
+        let mut l = LatencyStats::default();
+        assert_eq!(l.summary(), (0, 0, 0, 0));
+        for k in 1..=100 {
+            l.record(k * 1000);
+        }
+        let (n, median, p99, max) = l.summary();
+        assert_eq!((n, max), (100, 100_000));
+        assert!((50_000..=51_000).contains(&median), "{median}");
+        assert!((99_000..=100_000).contains(&p99), "{p99}");
+    }
+}
