@@ -8,6 +8,7 @@ mod faults;
 mod kin;
 mod log;
 mod plots;
+mod replay;
 mod report;
 mod run;
 mod run_mcap;
@@ -82,6 +83,9 @@ enum Command {
     Swap(swap::SwapArgs),
     /// Inspect (`info`) or validate (`check`) an MCAP log written by `motm run --mcap`.
     Log(log::LogArgs),
+    /// Replay a `motm trial --mcap` log through the control tasks (e.g. with new gains) and
+    /// report the first cycle whose output differs.
+    Replay(replay::ReplayArgs),
 }
 
 fn main() -> ExitCode {
@@ -97,6 +101,7 @@ fn main() -> ExitCode {
         Command::Status(args) => status::run(&args),
         Command::Swap(args) => swap::run(&args),
         Command::Log(args) => log::run(&args),
+        Command::Replay(args) => replay::run(&config_dir, &args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

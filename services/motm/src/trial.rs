@@ -32,6 +32,10 @@ pub struct TrialArgs {
     /// base command) to this CSV file.
     #[arg(long)]
     pub trace_csv: Option<PathBuf>,
+    /// Write the trial's replay log (every sample on the bus and every task cycle) to this
+    /// MCAP file, for `motm replay` (MotM only).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
 }
 
 /// Loads a scenario and its robot, with the base speed overridden when given.
@@ -73,19 +77,38 @@ pub fn run_spec(
 /// `motm trial`.
 pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
     let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed)?;
+    if args.mcap.is_some() && args.method != Method::Motm {
+        return Err(CliError::BadInput(format!(
+            "--mcap: replay logs are written for --method motm, not {}",
+            args.method
+        )));
+    }
     let config = RunnerConfig {
         record_cycles: args.trace_csv.is_some(),
+        record_log: args.mcap.is_some(),
         ..RunnerConfig::default()
     };
-    let (result, trace) = run_trial(
+    let (result, mut trace) = run_trial(
         &robot,
         &scenario,
         args.method,
         args.seed,
         &config,
-        args.trace_csv.is_some(),
+        args.trace_csv.is_some() || args.mcap.is_some(),
     )
     .map_err(CliError::BadInput)?;
+    if let Some(path) = &args.mcap {
+        let log = trace
+            .as_mut()
+            .and_then(|t| t.log.take())
+            .ok_or_else(|| CliError::Failed("the trial kept no replay log".into()))?;
+        let info = crate::replay::TrialInfo {
+            scenario: scenario.path.clone(),
+            seed: args.seed,
+            base_speed: scenario.base_speed,
+        };
+        crate::replay::write_log(path, &info, &log).map_err(CliError::Failed)?;
+    }
     if let (Some(path), Some(trace)) = (&args.trace_csv, trace) {
         let mut csv = motm_sim::experiment::CYCLE_COLUMNS.join(",") + "\n";
         for row in &trace.cycles {

@@ -552,8 +552,12 @@ fn qp_status_rejects_bad_fields() {
         objective: -3.5,
         slack_norm: 0.01,
         image_stamp_ns: NOW - 40_000_000,
+        twist: [0.1, -0.2, 0.3, 0.0, 0.5, -0.5],
     };
     assert_eq!(check(&ok), Ok(()));
+    let mut fast = ok;
+    fast.twist[4] = f64::INFINITY;
+    assert_rejected(&fast, "twist", Some(4), not_finite);
     assert_rejected(
         &QpStatus { outcome: 3, ..ok },
         "outcome",

@@ -15,6 +15,7 @@ pub mod objects;
 mod pixel_noise;
 pub mod random;
 pub mod render;
+pub mod replay;
 pub mod runner;
 pub mod scenario;
 pub mod sim_world;

@@ -571,6 +571,7 @@ fn run_motm_trial(
             log.cycles.extend(scheduler.take_records());
         }
         let control_cycle = tick.is_multiple_of(control_ticks);
+        let cycle = tick / control_ticks;
         tick += 1;
         if !control_cycle {
             continue;
@@ -585,7 +586,6 @@ fn run_motm_trial(
         else {
             break;
         };
-        let cycle = tick / control_ticks;
         if config.record_cycles {
             let task_index = taps.mission.map_or(0, |m| m.task_index as usize);
             let item = tasks.get(task_index).map_or(0, |t| t.item);
@@ -613,7 +613,7 @@ fn run_motm_trial(
                 sim, task_index, item, &target, command, &internals,
             ));
         }
-        if (cycle - 1).is_multiple_of(config.trace_every.max(1) as u64) {
+        if cycle.is_multiple_of(config.trace_every.max(1) as u64) {
             sample_trace(trace, sim.truth());
         }
     }

@@ -1,4 +1,6 @@
 //! What the closed-loop trial tests share: the scenarios they load and the seeds they run.
+//! Each test crate uses a part of it.
+#![allow(dead_code)]
 
 use std::path::Path;
 
