@@ -294,6 +294,51 @@ pub const GRAPH: &[TaskSpec] = &[
     MISSION,
 ];
 
+/// The reactive baseline (stop and grasp): in its graph it replaces the mission, the base
+/// planner, the reacher, the final phase and the QP resolver; it sequences its own tasks and
+/// publishes the mission state perception follows.
+pub const REACTIVE: TaskSpec = TaskSpec {
+    name: "reactive",
+    inputs: &[
+        t::ARM_JOINT_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
+        t::ARM_GRIPPER_STATE.spec(),
+        t::PERCEPTION_TARGET.spec(),
+    ],
+    outputs: &[
+        t::MISSION_STATE.spec(),
+        t::ARM_VELOCITY_COMMAND.spec(),
+        t::BASE_VELOCITY_COMMAND.spec(),
+        t::ARM_GRIPPER_COMMAND.spec(),
+    ],
+    rate: Rate::Control,
+    trigger: Trigger::Timer,
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The planning baseline (plan once, then track the plan open loop): in its graph it replaces
+/// the same tasks as the reactive baseline, and perception.
+pub const PLANNING: TaskSpec = TaskSpec {
+    name: "planning",
+    inputs: &[t::ARM_JOINT_STATE.spec(), t::BASE_ODOMETRY.spec()],
+    outputs: &[
+        t::MISSION_STATE.spec(),
+        t::ARM_VELOCITY_COMMAND.spec(),
+        t::BASE_VELOCITY_COMMAND.spec(),
+        t::ARM_GRIPPER_COMMAND.spec(),
+    ],
+    rate: Rate::Control,
+    trigger: Trigger::Timer,
+    control_path: true,
+    sim_only: false,
+    host: Host::Process,
+};
+
+/// The baselines' tasks, for the in-process comparisons of the paper's experiments.
+pub const BASELINES: &[TaskSpec] = &[REACTIVE, PLANNING];
+
 /// Topics the supervisor publishes itself, outside any task: the hot swap's active-controller
 /// id and the process table.
 pub const SUPERVISOR_TOPICS: &[TopicSpec] = &[

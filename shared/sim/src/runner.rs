@@ -13,22 +13,21 @@
 //! estimated by perception from the rendered palm image; until the first fix the scenario's
 //! position stands in, and when the target leaves the view the last estimate is held.
 
-use std::collections::VecDeque;
 use std::time::Instant;
 
 use motm_core::camera::CameraConfig;
 use motm_core::command_limiter::CommandLimiterConfig;
 use motm_core::final_phase::FinalPhaseStage;
-use motm_core::mission::MissionTask;
 use motm_core::on_the_move::OnTheMoveConfig;
-use motm_core::perception::{Perception, PerceptionConfig, PerceptionInput};
+use motm_core::perception::PerceptionConfig;
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
-use motm_core::reactive::{ReactiveBaseline, ReactiveConfig, ReactiveInput};
+use motm_core::reactive::{ReactiveBaseline, ReactiveConfig};
 use motm_core::resolver::RedundancyResolver;
-use motm_core::{BaseVelocity, GripperCommand, Robot, RobotState, TargetEstimate, TaskProgress};
+use motm_core::{BaseVelocity, Robot, TargetEstimate};
 use motm_graph::{Scheduler, Source, TaskSpec};
 use motm_msgs::{self as msgs, topics};
 use motm_tasks::ControlSetup;
+use motm_tasks::baselines::{PlanningTask, ReactiveTask};
 use motm_tasks::driver::{self, ArmDriverTask, BaseDriverTask};
 use motm_tasks::final_phase::FinalPhaseTask;
 use motm_tasks::mission::MissionSequencerTask;
@@ -38,13 +37,11 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use crate::experiment::{Method, TrialLog, TrialResult, TrialTrace};
 use crate::metrics::AccelerationFilterConfig;
 use crate::objects::Button;
-use crate::render::{
-    BUTTON_BODY, BUTTON_RED, CONTAINER_BLUE, PLATFORM_WOOD, PalmCamera, Scene, SceneBox,
-};
+use crate::render::{BUTTON_BODY, BUTTON_RED, CONTAINER_BLUE, PLATFORM_WOOD, Scene, SceneBox};
 use crate::scenario::Scenario;
-use crate::sim_world::{HardwareInput, SimWorld, SimWorldConfig, TrialStatus};
+use crate::sim_world::{SimWorld, SimWorldConfig, TrialStatus};
 use crate::task::SimWorldTask;
-use crate::world::{HardwareCommand, Outcome, World};
+use crate::world::{Outcome, World};
 
 /// Settings of the runner and of every method it can run.
 #[derive(Debug, Clone)]
@@ -96,19 +93,6 @@ impl Default for RunnerConfig {
             planning: PlanningConfig::default(),
         }
     }
-}
-
-/// e_t used in the QP's 1/e_t weights when tracking the planning baseline's EE twist: small, so
-/// the slack is expensive and the planned twist is followed.
-const PLANNING_POSITION_ERROR: f64 = 0.02;
-
-/// A method's controller, stepped at the control rate.
-enum Controller {
-    /// The reactive baseline.
-    Reactive(Box<ReactiveBaseline>),
-    /// The planning baseline: the plan's tracker plus the QP that turns its EE twist into joint
-    /// velocities while the base follows the plan.
-    Planning(Box<PlanningController>, Box<RedundancyResolver>),
 }
 
 /// The scene the camera sees: the fixed layout plus the cubes and button caps where they are
@@ -192,91 +176,6 @@ impl SceneBuilder {
     }
 }
 
-/// Tracks the current task's target: perception for picks and presses, known positions
-/// otherwise.
-struct TargetTracker {
-    tasks: Vec<MissionTask>,
-    perception: Perception,
-    config: PerceptionConfig,
-    task: Option<usize>,
-    /// Recent (time, estimated tool pose) pairs, to pair a frame with the pose at its stamp.
-    tool_history: VecDeque<(f64, Isometry3<f64>)>,
-}
-
-impl TargetTracker {
-    fn new(tasks: Vec<MissionTask>, config: PerceptionConfig, camera: &PalmCamera) -> Self {
-        Self {
-            tasks,
-            perception: Perception::new(config, camera.calibration()),
-            config,
-            task: None,
-            tool_history: VecDeque::new(),
-        }
-    }
-
-    /// Switches to task `index`, resetting perception for a new task.
-    fn select(&mut self, index: usize, camera: &PalmCamera) {
-        if self.task != Some(index) {
-            self.task = Some(index);
-            self.perception = Perception::new(self.config, camera.calibration());
-        }
-    }
-
-    /// Records the estimated tool pose at time `t`.
-    fn record_tool(&mut self, t: f64, pose: Isometry3<f64>) {
-        self.tool_history.push_back((t, pose));
-        while self.tool_history.len() > 200 {
-            self.tool_history.pop_front();
-        }
-    }
-
-    /// Whether [`TargetTracker::observe`] reads camera frames now (perceived tasks only).
-    fn wants_frames(&self) -> bool {
-        self.task
-            .and_then(|i| self.tasks.get(i))
-            .is_some_and(|task| task.kind.is_perceived())
-    }
-
-    /// Feeds one camera frame to perception (perceived tasks only).
-    fn observe(&mut self, image: &[u8], width: u32, height: u32, stamp: f64) {
-        let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
-            return;
-        };
-        if !task.kind.is_perceived() {
-            return;
-        }
-        let Some(&(_, tool_pose)) = self
-            .tool_history
-            .iter()
-            .min_by(|a, b| (a.0 - stamp).abs().total_cmp(&(b.0 - stamp).abs()))
-        else {
-            return;
-        };
-        self.perception.step(&PerceptionInput {
-            image,
-            width,
-            height,
-            stamp,
-            tool_pose,
-            object_height: task.position.z,
-            target_hint: Some(task.position),
-        });
-    }
-
-    /// The current task's target estimate.
-    fn target(&self) -> TargetEstimate {
-        let Some(task) = self.task.and_then(|i| self.tasks.get(i)) else {
-            return TargetEstimate::fixed(Vector3::zeros());
-        };
-        let estimate = self.perception.estimate();
-        if task.kind.is_perceived() && estimate.valid {
-            estimate.target()
-        } else {
-            TargetEstimate::fixed(task.position)
-        }
-    }
-}
-
 /// Number of MotM internal columns at the end of a trace row.
 const MOTM_COLUMNS: usize = 9;
 
@@ -346,25 +245,17 @@ impl Taps {
     }
 }
 
-/// The MotM graph of `scenario`: every task of [`motm_graph::GRAPH`] (but the watchdog, which
-/// watches processes), with `sim` as the hardware. Replay builds the same graph.
-pub fn motm_graph(
+/// The front of every method's graph: `sim` as the hardware, the two drivers and, when
+/// `perceive`, perception, at their rows' rates.
+fn hardware_graph(
     robot: &Robot,
-    scenario: &Scenario,
     sim: SimWorld,
     config: &RunnerConfig,
+    perceive: bool,
 ) -> Result<Scheduler, String> {
     let physics_step_ns = (config.physics_step * 1e9).round() as u64;
     let control = config.control_rate_hz;
-    let mut motm = config.motm.clone();
-    motm.base.forward_speed = scenario.base_speed;
-    let setup = ControlSetup {
-        robot: robot.clone(),
-        config: motm.clone(),
-        rate_hz: control,
-    };
     let calibration = sim.camera().calibration();
-    let start = scenario.start();
     let stale = CommandLimiterConfig::default().stale_periods;
     let status_every = |rate: f64| (rate / DRIVER_STATUS_RATE_HZ).round().max(1.0) as u64;
     let rate = |spec: &TaskSpec| spec.rate.hz(control);
@@ -391,17 +282,39 @@ pub fn motm_graph(
         &motm_graph::LD60_DRIVER,
         base_rate,
     );
-    s.add(
-        PerceptionTask::new(
-            robot.clone(),
-            config.perception,
-            calibration,
-            PERCEPTION_HISTORY,
-            motm.mission.run_out_distance,
-        ),
-        &motm_graph::PERCEPTION,
-        rate(&motm_graph::PERCEPTION),
-    );
+    if perceive {
+        s.add(
+            PerceptionTask::new(
+                robot.clone(),
+                config.perception,
+                calibration,
+                PERCEPTION_HISTORY,
+                config.motm.mission.run_out_distance,
+            ),
+            &motm_graph::PERCEPTION,
+            rate(&motm_graph::PERCEPTION),
+        );
+    }
+    Ok(s)
+}
+
+/// The MotM graph of `scenario`: every task of [`motm_graph::GRAPH`] (but the watchdog, which
+/// watches processes), with `sim` as the hardware. Replay builds the same graph.
+pub fn motm_graph(
+    robot: &Robot,
+    scenario: &Scenario,
+    sim: SimWorld,
+    config: &RunnerConfig,
+) -> Result<Scheduler, String> {
+    let mut motm = config.motm.clone();
+    motm.base.forward_speed = scenario.base_speed;
+    let setup = ControlSetup {
+        robot: robot.clone(),
+        config: motm,
+        rate_hz: config.control_rate_hz,
+    };
+    let start = scenario.start();
+    let mut s = hardware_graph(robot, sim, config, true)?;
     motm_tasks::graph::add_control_tasks(
         &mut s,
         &setup,
@@ -409,6 +322,57 @@ pub fn motm_graph(
         Vector3::new(start.x, start.y, 0.0),
     );
     Ok(s)
+}
+
+/// The graph of a baseline (`method` is not MotM), or why it cannot run on `scenario` (the
+/// planning baseline plans one pick and place), as the trial's result.
+fn baseline_graph(
+    robot: &Robot,
+    scenario: &Scenario,
+    sim: SimWorld,
+    config: &RunnerConfig,
+    method: Method,
+) -> Result<Result<Scheduler, String>, String> {
+    let tasks = scenario.mission_tasks();
+    let control = config.control_rate_hz;
+    if method == Method::Reactive {
+        let mut reactive = config.reactive.clone();
+        reactive.max_base_speed = scenario.base_speed;
+        let baseline = ReactiveBaseline::new(robot.clone(), reactive, tasks.clone());
+        let mut s = hardware_graph(robot, sim, config, true)?;
+        s.add(
+            ReactiveTask::new(baseline, tasks),
+            &motm_graph::REACTIVE,
+            motm_graph::REACTIVE.rate.hz(control),
+        );
+        return Ok(Ok(s));
+    }
+    let [object] = scenario.objects.as_slice() else {
+        return Err(format!(
+            "{}: the planning baseline plans one pick and place; this scenario has {} objects",
+            scenario.path.display(),
+            scenario.objects.len()
+        ));
+    };
+    let request = PlanRequest {
+        start_base: scenario.start(),
+        start_base_speed: 0.0,
+        cube: Vector3::from(object.position),
+        container: Vector3::from(object.place),
+        base_speed: scenario.base_speed,
+    };
+    let tracker = match PlanningController::from_request(robot, &request, &config.planning) {
+        Ok(tracker) => tracker,
+        Err(e) => return Ok(Err(format!("plan_failed: {e}"))),
+    };
+    let resolver = RedundancyResolver::for_robot(robot, config.motm.resolver.clone());
+    let mut s = hardware_graph(robot, sim, config, false)?;
+    s.add(
+        PlanningTask::new(robot.clone(), tracker, resolver, tasks),
+        &motm_graph::PLANNING,
+        motm_graph::PLANNING.rate.hz(control),
+    );
+    Ok(Ok(s))
 }
 
 /// The driver status rate, Hz (the drivers' `--status-rate` default).
@@ -523,38 +487,37 @@ fn trace_row(
     row
 }
 
-/// One MotM trial: the graph's tasks scheduled in lockstep until the world decides.
-fn run_motm_trial(
-    robot: &Robot,
+/// The simulated world of a trial's graph.
+fn sim_of(s: &Scheduler) -> Option<&SimWorld> {
+    s.task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
+        .map(SimWorldTask::sim)
+}
+
+/// One trial: the graph's tasks scheduled in lockstep until the world decides.
+fn run_graph_trial(
+    mut scheduler: Scheduler,
     scenario: &Scenario,
-    sim: SimWorld,
+    method: Method,
     config: &RunnerConfig,
     record_trace: bool,
     wall_start: Instant,
 ) -> Result<(TrialResult, Option<TrialTrace>), String> {
     let tasks = scenario.mission_tasks();
-    let mut trace = record_trace.then(|| new_trace(&sim, scenario.objects.len()));
-    let mut scheduler = motm_graph(robot, scenario, sim, config)?;
-    let mut log = (record_trace && config.record_log).then(|| {
+    let mut trace = sim_of(&scheduler).map(|sim| new_trace(sim, scenario.objects.len()));
+    if !record_trace {
+        trace = None;
+    }
+    let mut log = (record_trace && config.record_log && method == Method::Motm).then(|| {
         scheduler.record_cycles();
         scheduler.bus().record_samples();
         TrialLog::default()
     });
-    let physics_step_ns = (config.physics_step * 1e9).round() as u64;
     let control_ticks = ((1.0 / config.control_rate_hz) / config.physics_step)
         .round()
         .max(1.0) as u64;
     let mut taps = Taps::default();
     let mut tick = 0u64;
-    loop {
-        let sim_task = |s: &Scheduler| {
-            s.task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
-                .map(SimWorldTask::sim)
-                .map(SimWorld::status)
-        };
-        if sim_task(&scheduler) != Some(TrialStatus::Running) {
-            break;
-        }
+    while sim_of(&scheduler).map(SimWorld::status) == Some(TrialStatus::Running) {
         // Frames perception would not read are not rendered (the same trial either way).
         let perceiving = taps.mission.is_some_and(|m| {
             msgs::TaskPhase::try_from(m.phase) != Ok(msgs::TaskPhase::Complete)
@@ -562,8 +525,9 @@ fn run_motm_trial(
                     .get(m.task_index as usize)
                     .is_some_and(|t| t.kind.is_perceived())
         });
+        let has_perception = method != Method::Planning;
         if let Some(sim) = scheduler.task_mut::<SimWorldTask>(motm_graph::SIM_WORLD.name) {
-            sim.set_rendering(perceiving || taps.mission.is_none());
+            sim.set_rendering(has_perception && (perceiving || taps.mission.is_none()));
         }
         scheduler.tick();
         if let Some(log) = log.as_mut() {
@@ -580,10 +544,7 @@ fn run_motm_trial(
         let Some(trace) = trace.as_mut() else {
             continue;
         };
-        let Some(sim) = scheduler
-            .task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
-            .map(SimWorldTask::sim)
-        else {
+        let Some(sim) = sim_of(&scheduler) else {
             break;
         };
         if config.record_cycles {
@@ -608,7 +569,11 @@ fn run_motm_trial(
                     v: c.v,
                     omega: c.omega,
                 });
-            let internals = motm_internals(&taps, &scheduler, &sim.sensors().arm_q);
+            let internals = if method == Method::Motm {
+                motm_internals(&taps, &scheduler, &sim.sensors().arm_q)
+            } else {
+                [0.0; MOTM_COLUMNS]
+            };
             trace.cycles.push(trace_row(
                 sim, task_index, item, &target, command, &internals,
             ));
@@ -617,14 +582,10 @@ fn run_motm_trial(
             sample_trace(trace, sim.truth());
         }
     }
-    let _ = physics_step_ns;
     if let (Some(trace), Some(log)) = (trace.as_mut(), log) {
         trace.log = Some(log);
     }
-    let sim = scheduler
-        .task::<SimWorldTask>(motm_graph::SIM_WORLD.name)
-        .map(SimWorldTask::sim)
-        .ok_or("the graph has no sim-world task")?;
+    let sim = sim_of(&scheduler).ok_or("the graph has no sim-world task")?;
     Ok((trial_result(sim, wall_start), trace))
 }
 
@@ -639,156 +600,36 @@ pub fn run_trial(
     record_trace: bool,
 ) -> Result<(TrialResult, Option<TrialTrace>), String> {
     let wall_start = Instant::now();
-    let tasks = scenario.mission_tasks();
     // The same world, camera, metrics and verdict as the sim-world process.
-    let mut sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
+    let sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
         .map_err(|e| e.to_string())?;
-    let mut controller = match method {
-        Method::Motm => {
-            return run_motm_trial(robot, scenario, sim, config, record_trace, wall_start);
-        }
-        Method::Reactive => {
-            let mut reactive = config.reactive.clone();
-            reactive.max_base_speed = scenario.base_speed;
-            Controller::Reactive(Box::new(ReactiveBaseline::new(
-                robot.clone(),
-                reactive,
-                tasks.clone(),
-            )))
-        }
-        Method::Planning => {
-            let start = scenario.start();
-            let [object] = scenario.objects.as_slice() else {
-                return Err(format!(
-                    "{}: the planning baseline plans one pick and place; this scenario has {} objects",
-                    scenario.path.display(),
-                    scenario.objects.len()
-                ));
-            };
-            let request = PlanRequest {
-                start_base: start,
-                start_base_speed: 0.0,
-                cube: Vector3::from(object.position),
-                container: Vector3::from(object.place),
-                base_speed: scenario.base_speed,
-            };
-            match PlanningController::from_request(robot, &request, &config.planning) {
-                Ok(tracker) => Controller::Planning(
-                    Box::new(tracker),
-                    Box::new(RedundancyResolver::for_robot(
-                        robot,
-                        config.motm.resolver.clone(),
-                    )),
-                ),
-                Err(e) => {
-                    let result = TrialResult {
-                        success: false,
-                        failure: Some(format!("plan_failed: {e}")),
-                        task_time_s: 0.0,
-                        mtph: 0.0,
-                        ee_acc_mean: 0.0,
-                        ee_acc_max: 0.0,
-                        ee_acc_filter: String::new(),
-                        sim_time_s: 0.0,
-                        wall_time_s: wall_start.elapsed().as_secs_f64(),
-                        round_trips_s: Vec::new(),
-                    };
-                    return Ok((result, None));
-                }
+    let scheduler = match method {
+        Method::Motm => motm_graph(robot, scenario, sim, config)?,
+        _ => match baseline_graph(robot, scenario, sim, config, method)? {
+            Ok(scheduler) => scheduler,
+            Err(failure) => {
+                let result = TrialResult {
+                    success: false,
+                    failure: Some(failure),
+                    task_time_s: 0.0,
+                    mtph: 0.0,
+                    ee_acc_mean: 0.0,
+                    ee_acc_max: 0.0,
+                    ee_acc_filter: String::new(),
+                    sim_time_s: 0.0,
+                    wall_time_s: wall_start.elapsed().as_secs_f64(),
+                    round_trips_s: Vec::new(),
+                };
+                return Ok((result, None));
             }
-        }
+        },
     };
-    let mut tracker = TargetTracker::new(tasks.clone(), config.perception, sim.camera());
-    let control_dt = 1.0 / config.control_rate_hz;
-    let physics_per_control = (control_dt / config.physics_step).round().max(1.0) as usize;
-    let mut trace = record_trace.then(|| new_trace(&sim, scenario.objects.len()));
-    let mut cycle = 0usize;
-    let internals = [0.0; MOTM_COLUMNS];
-    while sim.status() == TrialStatus::Running {
-        let sensors = sim.sensors().clone();
-        let t = sensors.time;
-        // The tool pose the robot believes it has (odometry + joints), for perception.
-        let believed_tool = robot.tool_pose(&sensors.base_pose, &sensors.arm_q);
-        tracker.record_tool(t, believed_tool);
-        let task_index = match &controller {
-            Controller::Reactive(c) => c.task_index(),
-            Controller::Planning(..) => 0,
-        };
-        tracker.select(task_index.min(tasks.len().saturating_sub(1)), sim.camera());
-        let target = tracker.target();
-        let command = match &mut controller {
-            Controller::Reactive(c) => {
-                let out = c.step(&ReactiveInput {
-                    t,
-                    base: sensors.base_pose,
-                    arm_q: &sensors.arm_q,
-                    gripper_opening: sensors.gripper_opening,
-                    target,
-                });
-                HardwareCommand {
-                    arm_qd: out.arm_qd,
-                    base: out.base,
-                    gripper: out.gripper,
-                }
-            }
-            Controller::Planning(tracker, resolver) => {
-                let state = RobotState {
-                    base: sensors.base_pose,
-                    base_velocity: sensors.base_velocity,
-                    arm_q: sensors.arm_q.clone(),
-                    tool_pose: believed_tool,
-                };
-                let plan = tracker.step(t, &state);
-                let resolved = resolver.resolve_motm(
-                    robot,
-                    &sensors.base_pose,
-                    &sensors.arm_q,
-                    plan.gripper_twist,
-                    PLANNING_POSITION_ERROR,
-                    Some(plan.base),
-                );
-                let gripper = if plan.progress == TaskProgress::Done {
-                    GripperCommand::Open
-                } else {
-                    plan.gripper
-                };
-                HardwareCommand {
-                    arm_qd: resolved.arm_qd,
-                    base: resolved.base,
-                    gripper,
-                }
-            }
-        };
-        let input = HardwareInput {
-            arm: Some((&command.arm_qd, 0.0)),
-            base: Some((command.base, 0.0)),
-            gripper: Some(command.gripper),
-        };
-        // Frames perception would not read are not rendered (the same trial either way).
-        let wants_frames = tracker.wants_frames();
-        for _ in 0..physics_per_control {
-            if let Some(frame) = sim.step_rendering(&input, wants_frames) {
-                tracker.observe(&frame.image, frame.width, frame.height, frame.stamp);
-            }
-        }
-        if let Some(trace) = trace.as_mut().filter(|_| config.record_cycles) {
-            let item = tasks.get(task_index).map_or(0, |t| t.item);
-            trace.cycles.push(trace_row(
-                &sim,
-                task_index,
-                item,
-                &target,
-                command.base,
-                &internals,
-            ));
-        }
-        if let Some(trace) = trace
-            .as_mut()
-            .filter(|_| cycle.is_multiple_of(config.trace_every.max(1)))
-        {
-            sample_trace(trace, sim.truth());
-        }
-        cycle += 1;
-    }
-    Ok((trial_result(&sim, wall_start), trace))
+    run_graph_trial(
+        scheduler,
+        scenario,
+        method,
+        config,
+        record_trace,
+        wall_start,
+    )
 }

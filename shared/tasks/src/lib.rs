@@ -19,6 +19,7 @@
 //! task's index); the mission task advances on that.
 
 pub mod base_planner;
+pub mod baselines;
 pub mod controllers;
 pub mod convert;
 pub mod driver;
