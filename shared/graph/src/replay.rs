@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use motm_msgs::{Message, Topic};
 
-use crate::task::{Consumed, Sink, Source, boxed_copy};
+use crate::task::{Consumed, Sink, Source, boxed_zeroed};
 
 /// One logged sample: its topic, sequence number, stamp and raw bytes.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -42,7 +42,7 @@ pub fn from_raw<T: Message>(bytes: &[u8]) -> Option<Box<T>> {
     if bytes.len() != size_of::<T>() {
         return None;
     }
-    let mut message = boxed_copy(&T::zeroed());
+    let mut message = boxed_zeroed::<T>();
     // SAFETY: the lengths match, and every bit pattern of the plain-data fields is a valid `T`
     // apart from codes, which `Message::validate` checks before use.
     unsafe {

@@ -10,7 +10,7 @@
 use std::sync::Arc;
 
 use motm_core::BaseVelocity;
-use motm_graph::{Task, boxed_copy, ports};
+use motm_graph::{Task, boxed_zeroed, ports};
 use motm_msgs::{self as msgs, Message, topics};
 
 use crate::messages;
@@ -147,7 +147,7 @@ impl Task for SimWorldTask {
         let image = frame.map(|frame| {
             // The frame's age in simulated time, mapped onto the monotonic clock.
             let stamp = now_ns.saturating_sub(((self.sim.truth().time - frame.stamp) * 1e9) as u64);
-            let mut image = boxed_copy(&msgs::CameraImage::zeroed());
+            let mut image = boxed_zeroed::<msgs::CameraImage>();
             messages::camera_image(&frame, &mut image);
             image.header.stamp_ns = stamp.max(1);
             Arc::from(image)
