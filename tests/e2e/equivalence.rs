@@ -30,15 +30,28 @@ fn json(out: &std::process::Output, what: &str) -> serde_json::Value {
 fn check(scenario: &str) {
     for seed in 1..=seeds() {
         let seed_arg = seed.to_string();
-        let common = ["--scenario", scenario, "--seed", seed_arg.as_str(), "--json"];
-        let prefix = format!("motmeq{}_{}_{seed}_", std::process::id(), scenario.replace('-', ""));
+        let common = [
+            "--scenario",
+            scenario,
+            "--seed",
+            seed_arg.as_str(),
+            "--json",
+        ];
+        let prefix = format!(
+            "motmeq{}_{}_{seed}_",
+            std::process::id(),
+            scenario.replace('-', "")
+        );
         let trial = json(
             &motm(&[&["trial"], &common[..]].concat(), &prefix),
             "motm trial",
         );
         let run = {
             let _stack = one_stack_at_a_time();
-            json(&motm(&[&["run"], &common[..]].concat(), &prefix), "motm run")
+            json(
+                &motm(&[&["run"], &common[..]].concat(), &prefix),
+                "motm run",
+            )
         };
         let context = format!("{scenario} seed {seed}: trial {trial}\nrun {run}");
         assert_eq!(trial["success"], run["success"], "{context}");

@@ -3,67 +3,35 @@
 //! Robot models, kinematics and the control laws of reactive mobile manipulation on-the-move.
 //! Everything here is pure code: no IPC and no I/O beyond reading model and configuration files.
 //!
-//! - [`base_controller`]: closest-approach geometry and the constant-speed polar base controller.
-//! - [`camera`]: the palm camera's equidistant fisheye model, configuration and calibration.
-//! - [`chain`]: serial chains loaded from URDF.
-//! - [`config_dir`]: where the `config/` folder is.
-//! - [`command_limiter`]: the drivers' velocity, acceleration and jerk limiter with stale-command and safe-stop ramps.
-//! - [`final_phase`]: swappable final-phase task controllers (grasp, drop, press-button).
-//! - [`kinematics`]: tool pose, world Jacobian, Hessian, manipulability and its gradient.
-//! - [`input_check`]: refusing non-finite controller input.
-//! - [`on_the_move`]: the four MotM modules and the QP composed into one control step.
-//! - [`mission`]: which target is current, which is next, which phase is active.
-//! - [`planning`]: the planning baseline (plan once with a QP, then track open-loop).
-//! - [`quintic`]: quintic trajectories with full boundary conditions.
-//! - [`reach_range`]: manipulation range derived from the model.
-//! - [`reacher`]: transit-time trigger and quintic reach toward the predicted object.
-//! - [`perception`]: cube position and velocity from palm-camera images.
-//! - [`reactive`]: the reactive (holistic stop-and-grasp) baseline's task stages.
-//! - [`robot`]: mobile manipulators (virtual base joints + arm) and their TOML configuration.
-//! - [`types`]: value types shared by the control modules.
-//! - [`velocity_driver`]: the arm and base drivers' logic: command ages and gaps, limiter, self-check.
-//! - [`servo`]: position-based servoing and twist/Jacobian frame changes.
-//! - [`stack`]: the control loop split into per-process cycle functions for the deployed stack.
-//! - [`resolver`]: the holistic redundancy-resolution QP, augmented for on-the-move.
-//! - [`holistic`]: the reactive holistic (stop-and-grasp) baseline controller.
-//! - [`qp_scenario`]: random representative resolver problems (benchmarks, tests).
-//! - [`error`]: errors that name the file and element at fault.
-//! - [`fault_schedule`]: the `motm run --fault` schedule (kill, stop, NaN sample).
-//! - [`facing`]: which arm joint the MotM facing term turns toward the gripper.
+//! The folders are the layers:
+//! - [`model`]: the robot model (robot, URDF chains, kinematics, palm camera, manipulation
+//!   range, shared value types and errors);
+//! - [`control`]: the MotM control laws (base controller, reacher, final-phase controllers,
+//!   redundancy-resolution QP, perception, mission) and the per-process cycle functions;
+//! - [`baselines`]: the reactive (holistic) and the planning baselines;
+//! - [`supervision`]: watchdog rules, hot swap, restart policy, fault schedule;
+//! - [`limits`]: the drivers' command limiter and velocity driver.
+//!
+//! The tasks that run these laws as processes are in `motm-tasks`, the graph and its runtimes
+//! in `motm-graph` and `motm-runtime`.
 
-pub mod base_command_rate;
-pub mod base_controller;
-pub mod base_slip;
-pub mod camera;
-pub mod chain;
-pub mod command_limiter;
-pub mod config_dir;
-pub mod error;
-pub mod facing;
-pub mod fault_schedule;
-pub mod final_phase;
-pub mod holistic;
-pub mod hot_swap;
-pub mod input_check;
-pub mod kinematics;
-pub mod mission;
-pub mod mission_tracker;
-pub mod on_the_move;
-pub mod perception;
-pub mod planning;
-pub mod qp_scenario;
-pub mod quintic;
-pub mod reach_range;
-pub mod reacher;
-pub mod reactive;
-pub mod resolver;
-pub mod restart_policy;
-pub mod robot;
-pub mod servo;
-pub mod stack;
-pub mod types;
-pub mod velocity_driver;
-pub mod watchdog;
+pub mod baselines;
+pub mod control;
+pub mod limits;
+pub mod model;
+pub mod supervision;
+
+// Every module is also reachable at the crate root, so that a path names the concept
+// (`motm_core::reacher`) while the folders show the layer it belongs to.
+pub use baselines::{holistic, planning, reactive};
+pub use control::{
+    base_command_rate, base_controller, base_slip, facing, final_phase, input_check, mission,
+    mission_tracker, on_the_move, perception, qp_scenario, quintic, reacher, resolver, servo,
+    stack,
+};
+pub use limits::{command_limiter, velocity_driver};
+pub use model::{camera, chain, config_dir, error, kinematics, reach_range, robot, types};
+pub use supervision::{fault_schedule, hot_swap, restart_policy, watchdog};
 
 pub use chain::{Chain, ChainJoint, JointKind, JointLimits};
 pub use config_dir::resolve_config_dir;
