@@ -28,6 +28,8 @@
 //!   acceleration limits, so the QP never plans the arm around a base turn the base cannot make.
 //! - **Bad input** (a non-finite estimate or joint value) gives an all-zero command for the cycle.
 
+use std::path::Path;
+
 use nalgebra::{Vector3, Vector6};
 use serde::Deserialize;
 
@@ -36,6 +38,7 @@ use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseModel,
 };
 use crate::base_slip::{BaseSlipConfig, slip_correction};
+use crate::error::ModelError;
 use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseStage, build,
 };
@@ -83,6 +86,9 @@ impl TwistRateLimit {
     }
 }
 
+/// The controllers file of a config folder (`config/controllers.toml`).
+pub const CONTROLLERS_FILE: &str = "controllers.toml";
+
 /// Every tunable of the composed MotM controller, by module. Every key is optional.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -123,6 +129,67 @@ impl Default for OnTheMoveConfig {
             base_slip: BaseSlipConfig::default(),
             base_rate: BaseCommandRateConfig::default(),
         }
+    }
+}
+
+impl OnTheMoveConfig {
+    /// Loads and checks a controllers file (`config/controllers.toml`: tables by module, every
+    /// key optional); unknown keys and bad values are errors naming the file and the key.
+    pub fn load(file: &Path) -> Result<Self, ModelError> {
+        let text = ModelError::read_to_string(file)?;
+        Self::from_toml_str(file, &text)
+    }
+
+    /// The controllers of a stack: `file` when given (relative paths as given), else
+    /// [`CONTROLLERS_FILE`] in `config_dir` when it exists, else the defaults. The deployed
+    /// services and the in-process trials take their gains from the same file this way.
+    pub fn for_stack(config_dir: &Path, file: Option<&Path>) -> Result<Self, ModelError> {
+        match file {
+            Some(file) => Self::load(file),
+            None => {
+                let default = config_dir.join(CONTROLLERS_FILE);
+                if default.is_file() {
+                    Self::load(&default)
+                } else {
+                    Ok(Self::default())
+                }
+            }
+        }
+    }
+
+    /// Parses and checks TOML text that came from `file`.
+    pub fn from_toml_str(file: &Path, text: &str) -> Result<Self, ModelError> {
+        let config: Self = ModelError::parse_toml_str(file, text)?;
+        config.validate(file)?;
+        Ok(config)
+    }
+
+    /// Checks the modules' values; `file` is named in the error.
+    pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
+        self.base.validate(file)?;
+        self.reacher.validate(file)?;
+        self.final_phase.validate(file)?;
+        let rates = [
+            (
+                "twist_rate.linear_acceleration",
+                self.twist_rate.linear_acceleration,
+            ),
+            (
+                "twist_rate.angular_acceleration",
+                self.twist_rate.angular_acceleration,
+            ),
+            ("max_position_error", self.max_position_error),
+        ];
+        for (key, value) in rates {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ModelError::invalid(
+                    file,
+                    key,
+                    format!("must be finite and positive, got {value}"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
