@@ -487,3 +487,42 @@ impl OnTheMove {
         }
     }
 }
+
+#[cfg(test)]
+mod config_file_tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_controllers_file_is_the_defaults() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/controllers.toml");
+        let loaded = OnTheMoveConfig::load(&file).unwrap();
+        assert_eq!(
+            format!("{loaded:?}"),
+            format!("{:?}", OnTheMoveConfig::default())
+        );
+    }
+
+    #[test]
+    fn a_bad_controllers_file_names_the_file_and_the_key() {
+        let file = Path::new("gains.toml");
+        let cases = [
+            ("[reacher]\narm_sped_ratio = 0.5\n", "arm_sped_ratio"),
+            ("max_position_error = -1.0\n", "max_position_error"),
+            (
+                "[twist_rate]\nlinear_acceleration = nan\n",
+                "linear_acceleration",
+            ),
+        ];
+        for (text, key) in cases {
+            let err = OnTheMoveConfig::from_toml_str(file, text)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("gains.toml") && err.contains(key),
+                "{key}: {err}"
+            );
+        }
+        let tuned = OnTheMoveConfig::from_toml_str(file, "[reacher]\narm_speed_ratio = 0.4\n");
+        assert_eq!(tuned.unwrap().reacher.arm_speed_ratio, 0.4);
+    }
+}

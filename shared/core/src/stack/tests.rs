@@ -470,7 +470,6 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
         let mut final_twist = None;
         let mut progress = TaskProgress::Active;
         if let Some(control) = fp.control {
-            reacher.follow(control.twist);
             final_twist = Some(sample(control.twist, view.task_index, Phase::Final, 0));
             progress = control.progress;
         } else {
@@ -505,6 +504,8 @@ fn the_split_cycles_agree_with_the_single_process_controller() {
             active_controller: None,
             base_target: Some((plan.plan.command, 0)),
         });
+        // The reacher's tool state is the twist the resolver resolved.
+        reacher.feedback(out.twist);
         mission.step(out.tool_to_target, progress);
 
         assert_eq!(out.source, TwistSource::ActivePhase, "cycle {cycle}");
