@@ -1,9 +1,10 @@
-//! The five control services as real processes, closing the loop over iceoryx2 with this test
-//! process standing in for the supervisor (the mission) and for the drivers (a kinematic
-//! robot that integrates the commands in real time). The services must carry a pick and a
-//! place of static targets through to the end of the mission, with finite commands within
-//! the joint velocity limits, take the single-process controller's time within 5 %, and leave
-//! no process and no shared memory behind.
+//! The deployed control chain as real processes over iceoryx2: the five control services
+//! (perception, base-planner, reacher, final-phase, qp-resolver) and the supervisor running
+//! the mission task (`--no-spawn`: it starts nothing), with this test standing in for the
+//! drivers (a kinematic robot that integrates the commands in real time). They must carry a
+//! pick and a place of static targets through to the end of the mission, with finite commands
+//! within the joint velocity limits, take the single-process controller's time within 5 %,
+//! and leave no process and no shared memory behind.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
@@ -14,18 +15,17 @@ use motm_bus::{
     shared_memory_entries,
 };
 use motm_core::kinematics::BasePose;
-use motm_core::mission::{Mission, MissionConfig, MissionTask, Phase, TaskKind};
+use motm_core::mission::{MissionTask, Phase};
 use motm_core::on_the_move::{OnTheMove, OnTheMoveConfig, OnTheMoveInput};
-use motm_core::stack::reach_aim;
-use motm_core::{BaseVelocity, Robot, TargetEstimate, TaskProgress, wrap_angle};
+use motm_core::{BaseVelocity, Robot, TargetEstimate, wrap_angle};
 use motm_msgs::{
     ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, GripperAction, GripperCommand,
-    GripperState, JointState, Message, MissionState, TaskKindCode, TwistCommand, services,
+    GripperState, JointState, Message, MissionState, services,
 };
+use motm_sim::Scenario;
 use motm_wire::convert;
-use nalgebra::Vector3;
 
-/// The services under test, in start order.
+/// The control services under test, in start order.
 const SERVICES: [&str; 5] = [
     "perception",
     "base-planner",
@@ -40,12 +40,25 @@ const MISSION_TIMEOUT: Duration = Duration::from_secs(90);
 /// Plant period.
 const DT: Duration = Duration::from_millis(5);
 
+/// The pick and place of these tests: a static cube and its container, straight ahead.
+const SCENARIO: &str = r#"
+name = "chain-pick-and-place"
+robot = "frankie"
+start_pose = [0.0, 0.0, 0.0]
+base_speed = 0.3
+
+[[objects]]
+position = [2.0, 0.3, 0.45]
+motion = "static"
+place = [4.0, 0.3, 0.35]
+"#;
+
 fn config_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
 }
 
-/// The folder with the service binaries (next to this test's `deps/` folder); builds them
-/// with `$CARGO` when one is missing.
+/// The folder with the service binaries (next to this test's `deps/` folder). Under cargo
+/// (`$CARGO` set) they are built first, so the test never runs stale binaries.
 fn binaries() -> PathBuf {
     let dir = std::env::current_exe()
         .unwrap()
@@ -54,54 +67,70 @@ fn binaries() -> PathBuf {
         .parent()
         .unwrap()
         .to_path_buf();
-    if SERVICES.iter().any(|s| !dir.join(s).is_file()) {
-        let cargo = std::env::var("CARGO").expect("service binaries missing and $CARGO not set");
+    if let Ok(cargo) = std::env::var("CARGO") {
         eprintln!("building the service binaries with {cargo}");
         let mut build = Command::new(cargo);
-        build.arg("build");
+        build.args(["build", "-p", "motm-supervisor"]);
         for s in SERVICES {
             build.args(["-p", &format!("motm-{s}")]);
+        }
+        if !cfg!(debug_assertions) {
+            build.arg("--release");
         }
         assert!(
             build.status().unwrap().success(),
             "cargo build of the services failed"
         );
     }
+    for name in SERVICES.iter().chain(&["supervisor"]) {
+        assert!(dir.join(name).is_file(), "{name} is missing in {}", dir.display());
+    }
     dir
 }
 
-/// The running services; killed and reaped on drop if the test fails early.
+/// The running processes; killed and reaped on drop if the test fails early.
 struct Stack {
     children: Vec<(&'static str, Child)>,
 }
 
 impl Stack {
-    fn start(ipc: &IpcConfig, rate: &str) -> Self {
+    /// The supervisor (mission only) first, so the mission is on the bus, then the services.
+    fn start(ipc: &IpcConfig, rate: &str, scenario: &Path) -> Self {
         let dir = binaries();
-        let children = SERVICES
-            .iter()
-            .map(|&name| {
-                let child = Command::new(dir.join(name))
-                    .arg("--config-dir")
-                    .arg(config_dir())
-                    .args(["--rate", rate, "--base-speed", "0.3"])
-                    .env(PREFIX_ENV, &ipc.prefix)
-                    .spawn()
-                    .unwrap_or_else(|e| panic!("{name} starts: {e}"));
-                (name, child)
-            })
-            .collect();
+        let mut children = Vec::new();
+        let supervisor = Command::new(dir.join("supervisor"))
+            .arg("--config-dir")
+            .arg(config_dir())
+            .arg("--scenario")
+            .arg(scenario)
+            .args(["--stack", "frankie", "--no-spawn", "--rate", rate])
+            .env(PREFIX_ENV, &ipc.prefix)
+            .spawn()
+            .unwrap_or_else(|e| panic!("supervisor starts: {e}"));
+        children.push(("supervisor", supervisor));
+        for name in SERVICES {
+            let child = Command::new(dir.join(name))
+                .arg("--config-dir")
+                .arg(config_dir())
+                .arg("--scenario")
+                .arg(scenario)
+                .args(["--rate", rate, "--base-speed", "0.3"])
+                .env(PREFIX_ENV, &ipc.prefix)
+                .spawn()
+                .unwrap_or_else(|e| panic!("{name} starts: {e}"));
+            children.push((name, child));
+        }
         Self { children }
     }
 
-    /// Asserts that every service is still running.
+    /// Asserts that every process is still running.
     fn assert_alive(&mut self) {
         for (name, child) in &mut self.children {
             assert!(matches!(child.try_wait(), Ok(None)), "{name} died");
         }
     }
 
-    /// SIGTERMs every service and asserts that each exits successfully.
+    /// SIGTERMs every process and asserts that each exits successfully.
     fn terminate(mut self) {
         for (_, child) in &self.children {
             // SAFETY: plain kill(2) on our own child, which has not been reaped yet.
@@ -128,11 +157,8 @@ impl Drop for Stack {
     }
 }
 
-/// The kinematic robot and the mission, standing in for drivers and supervisor.
+/// The kinematic robot, standing in for the drivers.
 struct Plant {
-    robot: Robot,
-    config: OnTheMoveConfig,
-    mission: Mission,
     base: BasePose,
     v: f64,
     omega: f64,
@@ -143,6 +169,19 @@ struct Plant {
 }
 
 impl Plant {
+    /// A plant at rest in `robot`'s ready pose at the origin.
+    fn at_rest(robot: &Robot) -> Self {
+        Self {
+            q: robot.config.ready_pose.clone(),
+            qd: vec![0.0; robot.arm_dof()],
+            base: BasePose::default(),
+            v: 0.0,
+            omega: 0.0,
+            opening: 0.08,
+            closing: false,
+        }
+    }
+
     /// Integrates the latest commands over `dt` seconds.
     fn integrate(&mut self, dt: f64) {
         self.base.x += self.v * self.base.yaw.cos() * dt;
@@ -158,85 +197,16 @@ impl Plant {
             (self.opening + 0.1 * dt).min(0.08)
         };
     }
-
-    /// The supervisor's step: tool-to-aim distance and the final phase's progress.
-    fn step_mission(&mut self, progress: TaskProgress) {
-        let Some(task) = self.mission.current_task().copied() else {
-            return;
-        };
-        let tool = self.robot.tool_pose(&self.base, &self.q).translation.vector;
-        let aim = reach_aim(
-            task.kind,
-            &TargetEstimate::fixed(task.position),
-            &self.config,
-        );
-        self.mission.step((tool - aim.position).norm(), progress);
-    }
-
-    fn mission_state(&self) -> MissionState {
-        let mut m = MissionState::zeroed();
-        m.task_index = self.mission.task_index() as u32;
-        m.task_count = self.mission.tasks().len() as u32;
-        m.phase = convert::phase_code(self.mission.phase()).into();
-        let (kind, target) = match self.mission.current_task() {
-            Some(task) => (task.kind, task.position),
-            None => (TaskKind::Pick, Vector3::zeros()),
-        };
-        m.task_kind = match kind {
-            TaskKind::Pick => TaskKindCode::Pick,
-            TaskKind::Place => TaskKindCode::Place,
-            TaskKind::PressButton => TaskKindCode::PressButton,
-        }
-        .into();
-        if self.mission.current_task().is_some() {
-            m.current_target = target.into();
-            m.next_target = self.mission.next_waypoint(&target).into();
-            m.has_next = 1;
-        }
-        m
-    }
 }
 
-/// The pick and place of these tests.
-fn tasks() -> Vec<MissionTask> {
-    vec![
-        MissionTask {
-            kind: TaskKind::Pick,
-            item: 0,
-            position: Vector3::new(2.0, 0.3, 0.45),
-        },
-        MissionTask {
-            kind: TaskKind::Place,
-            item: 0,
-            position: Vector3::new(4.0, 0.3, 0.35),
-        },
-    ]
-}
-
-/// A plant at rest at the start, with `tasks`' mission.
-fn plant(robot: Robot) -> Plant {
-    Plant {
-        q: robot.config.ready_pose.clone(),
-        qd: vec![0.0; robot.arm_dof()],
-        robot,
-        config: OnTheMoveConfig::default(),
-        mission: Mission::new(MissionConfig::default(), tasks(), Vector3::zeros()),
-        base: BasePose::default(),
-        v: 0.0,
-        omega: 0.0,
-        opening: 0.08,
-        closing: false,
-    }
-}
-
-/// Time the single-process controller needs for the mission on the same plant, s.
-fn single_process_mission_time(robot: &Robot) -> f64 {
-    let mut plant = plant(robot.clone());
+/// Time the single-process controller needs for the mission `tasks` on the same plant, s.
+fn single_process_mission_time(robot: &Robot, tasks: Vec<MissionTask>) -> f64 {
+    let mut plant = Plant::at_rest(robot);
     let mut controller = OnTheMove::new(
         robot.clone(),
-        plant.config.clone(),
-        tasks(),
-        Vector3::zeros(),
+        OnTheMoveConfig::default(),
+        tasks,
+        nalgebra::Vector3::zeros(),
     );
     let dt = DT.as_secs_f64();
     let mut t = 0.0;
@@ -268,30 +238,39 @@ fn single_process_mission_time(robot: &Robot) -> f64 {
 }
 
 #[test]
-fn the_control_services_carry_a_pick_and_place_through_over_iceoryx2() {
+fn the_control_services_and_the_mission_carry_a_pick_and_place_through_over_iceoryx2() {
     run_pick_and_place("200");
 }
 
 #[test]
-fn the_control_services_also_work_at_1_khz() {
+fn the_control_services_and_the_mission_also_work_at_1_khz() {
     run_pick_and_place("1000");
 }
 
-/// Runs the services at `rate` Hz through a pick and place; see the file's doc.
+/// The (task index, phase code) of a mission state.
+fn phase_of(m: &MissionState) -> (u32, u32) {
+    (m.task_index, m.phase)
+}
+
+/// Runs the processes at `rate` Hz through a pick and place; see the file's doc.
 fn run_pick_and_place(rate: &str) {
     let robot = Robot::load(&config_dir(), "frankie").unwrap();
     let limits = robot.limits();
-    let reference = single_process_mission_time(&robot);
-    let mut plant = plant(robot);
+    let folder = std::env::temp_dir().join(format!("motm-chain-{}-{rate}", std::process::id()));
+    std::fs::create_dir_all(&folder).unwrap();
+    let scenario_file = folder.join("scenario.toml");
+    std::fs::write(&scenario_file, SCENARIO).unwrap();
+    let scenario = Scenario::from_file(&scenario_file).unwrap();
+    let reference = single_process_mission_time(&robot, scenario.mission_tasks());
+    let mut plant = Plant::at_rest(&robot);
     let ipc = IpcConfig {
         prefix: format!("motmt{}_chain{rate}_", std::process::id()),
     };
-    let mut phases = vec![(0, Phase::Reach)];
+    let code = |index: u32, phase: Phase| (index, u32::from(convert::phase_code(phase)));
+    let mut phases = Vec::new();
     {
         let bus = Bus::open_with("chain-test", &ipc).unwrap();
         let qos = Qos::default();
-        let mut mission_out =
-            Publisher::<MissionState>::new(&bus, services::MISSION_STATE, &qos).unwrap();
         let mut joints_out =
             Publisher::<JointState>::new(&bus, services::ARM_JOINT_STATE, &qos).unwrap();
         let mut odometry_out =
@@ -306,16 +285,16 @@ fn run_pick_and_place(rate: &str) {
                 .unwrap();
         let mut gripper_in =
             Latest::<GripperCommand>::new(&bus, services::ARM_GRIPPER_COMMAND, &qos).unwrap();
-        let mut final_in =
-            Latest::<TwistCommand>::new(&bus, services::CONTROL_FINAL_TWIST, &qos).unwrap();
-        let mut stack = Stack::start(&ipc, rate);
+        let mut mission_in =
+            Latest::<MissionState>::new(&bus, services::MISSION_STATE, &qos).unwrap();
+        let mut stack = Stack::start(&ipc, rate, &scenario_file);
 
         let start = Instant::now();
         let mut mission_time = 0.0;
         let mut last = Instant::now();
         let mut commands = 0u64;
         let mut moving_commands = 0u64;
-        while plant.mission.phase() != Phase::Complete {
+        while phases.last() != Some(&code(2, Phase::Complete)) {
             assert!(
                 start.elapsed() < MISSION_TIMEOUT,
                 "mission not complete in time: {phases:?}, base {:?}",
@@ -361,18 +340,12 @@ fn run_pick_and_place(rate: &str) {
             gripper_in.update().unwrap();
             plant.closing =
                 gripper_in.get().and_then(GripperCommand::action) == Some(GripperAction::Close);
-            final_in.update().unwrap();
-            let progress = final_in
-                .get()
-                .filter(|m| m.task_index as usize == plant.mission.task_index())
-                .and_then(convert::progress)
-                .unwrap_or(TaskProgress::Active);
-            plant.step_mission(progress);
-            let phase = (plant.mission.task_index(), plant.mission.phase());
-            if phases.last() != Some(&phase) {
+            mission_in.update().unwrap();
+            if let Some(phase) = mission_in.get().map(phase_of)
+                && phases.last() != Some(&phase)
+            {
                 phases.push(phase);
             }
-            mission_out.publish(plant.mission_state()).unwrap();
             let mut joints = JointState::zeroed();
             joints.joint_count = plant.q.len() as u32;
             joints.position[..plant.q.len()].copy_from_slice(&plant.q);
@@ -402,14 +375,15 @@ fn run_pick_and_place(rate: &str) {
     assert_eq!(
         phases,
         vec![
-            (0, Phase::Reach),
-            (0, Phase::Final),
-            (1, Phase::Reach),
-            (1, Phase::Final),
-            (2, Phase::Complete)
+            code(0, Phase::Reach),
+            code(0, Phase::Final),
+            code(1, Phase::Reach),
+            code(1, Phase::Final),
+            code(2, Phase::Complete)
         ]
     );
-    // SAFETY: the test's bus is dropped and every service is reaped.
+    std::fs::remove_dir_all(&folder).unwrap();
+    // SAFETY: the test's bus is dropped and every process is reaped.
     unsafe { remove_domain(&ipc) }.unwrap();
     let left = shared_memory_entries(&ipc).unwrap();
     assert!(left.is_empty(), "stale iceoryx2 resources: {left:?}");
