@@ -315,7 +315,8 @@ impl<'bus> ServiceLoop<'bus> {
             .collect::<Result<Vec<_>, _>>()
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
         // A WaitSet needs an attachment to wait on; without triggers this is the timeout only.
-        let idle = (guards.is_empty())
+        let idle = guards
+            .is_empty()
             .then(|| waitset.attach_interval(self.config.period))
             .transpose()
             .map_err(|e| BusError::Loop(format!("{e:?}")))?;
