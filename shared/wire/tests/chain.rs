@@ -83,7 +83,11 @@ fn binaries() -> PathBuf {
         );
     }
     for name in SERVICES.iter().chain(&["supervisor"]) {
-        assert!(dir.join(name).is_file(), "{name} is missing in {}", dir.display());
+        assert!(
+            dir.join(name).is_file(),
+            "{name} is missing in {}",
+            dir.display()
+        );
     }
     dir
 }
