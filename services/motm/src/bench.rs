@@ -27,8 +27,9 @@ enum BenchCommand {
     /// Per-hop latency between two processes: iceoryx2 and a Unix-domain socket, 64 B and a
     /// camera image.
     Ipc(crate::bench_ipc::IpcArgs),
-    /// End-to-end latency of the running stack: from a camera frame's exposure stamp to the
-    /// joint command that used it (median, p99 and max µs over one `motm run`).
+    /// End-to-end latency of the running stack: from a camera frame's publication to the first
+    /// joint command computed from it (median, p99 and max µs over one `motm run`), and from
+    /// the exposure of the image behind the target to every command (`exposure_*`).
     E2e(crate::run::RunArgs),
     /// The logger's cost to the control loop: p99 cycle times over runs without and with
     /// `--mcap` (median and worst run per process, and the ratio).
@@ -79,20 +80,28 @@ fn summarize(samples: &mut [f64]) -> (f64, f64, f64) {
     (at(0.5), at(0.99), at(1.0))
 }
 
-/// `motm bench e2e`: one `motm run` with every QP cycle's camera-to-command latency recorded.
+/// `motm bench e2e`: one `motm run` with every QP status recorded. The headline figures are
+/// from a frame's publication to the first joint command computed from it; the `exposure_*`
+/// ones from the exposure of the image behind the target to every command that used it.
 fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> {
     let (report, mut latencies) =
         crate::run::run_stack(config_dir, args, true).map_err(|e| e.to_string())?;
-    if latencies.is_empty() {
-        return Err("no QP cycle reported a camera-frame stamp".into());
+    if latencies.frame_us.is_empty() || latencies.exposure_us.is_empty() {
+        return Err("no QP cycle reported a camera frame".into());
     }
-    let samples = latencies.len();
-    let (median, p99, max) = summarize(&mut latencies);
+    let samples = latencies.frame_us.len();
+    let exposure_samples = latencies.exposure_us.len();
+    let (median, p99, max) = summarize(&mut latencies.frame_us);
+    let (exposure_median, exposure_p99, exposure_max) = summarize(&mut latencies.exposure_us);
     let summary = json!({
         "median_us": median,
         "p99_us": p99,
         "max_us": max,
         "samples": samples,
+        "exposure_median_us": exposure_median,
+        "exposure_p99_us": exposure_p99,
+        "exposure_max_us": exposure_max,
+        "exposure_samples": exposure_samples,
         "success": report.trial.success,
         "control_rate_hz": report.control_rate_hz,
         "scenario": report.scenario,
@@ -101,8 +110,11 @@ fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> 
         println!("{summary}");
     } else {
         println!(
-            "camera frame → joint command over {samples} QP cycles at {} Hz: median {median:.0} µs, p99 {p99:.0} µs, max {max:.0} µs (run {})",
+            "frame published → first joint command from it, over {samples} frames at {} Hz: median {median:.0} µs, p99 {p99:.0} µs, max {max:.0} µs",
             report.control_rate_hz,
+        );
+        println!(
+            "image exposure → joint command, over {exposure_samples} QP cycles: median {exposure_median:.0} µs, p99 {exposure_p99:.0} µs, max {exposure_max:.0} µs (run {})",
             if report.trial.success {
                 "succeeded"
             } else {

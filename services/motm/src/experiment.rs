@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use motm_sim::experiment::{Method, TrialResult, TrialSpec, TrialTrace, aggregate, plan};
+use motm_sim::runner::RunnerConfig;
 
 use crate::CliError;
 use crate::{plots, report, trial};
@@ -32,6 +33,10 @@ pub struct ExperimentArgs {
     /// Worker threads (default: the available cores).
     #[arg(long)]
     pub jobs: Option<usize>,
+    /// Controller gains (TOML; default: `controllers.toml` in the config folder, the file the
+    /// deployed stack reads).
+    #[arg(long)]
+    pub controllers: Option<PathBuf>,
 }
 
 /// One finished trial: its spec, its result, and its trace when one was recorded.
@@ -41,6 +46,7 @@ type Finished = (TrialSpec, TrialResult, Option<TrialTrace>);
 /// cannot start (bad scenario) aborts the whole run with its error.
 pub fn run_all(
     config_dir: &Path,
+    config: &RunnerConfig,
     specs: &[TrialSpec],
     jobs: usize,
     trace_wanted: impl Fn(&TrialSpec) -> bool + Sync,
@@ -58,7 +64,7 @@ pub fn run_all(
                         break;
                     }
                     let spec = &specs[index];
-                    match trial::run_spec(config_dir, spec, trace_wanted(spec)) {
+                    match trial::run_spec(config_dir, spec, config, trace_wanted(spec)) {
                         Ok((result, trace)) => {
                             slots.lock().unwrap()[index] = Some((spec.clone(), result, trace));
                         }
@@ -104,8 +110,10 @@ pub fn run(config_dir: &Path, args: &ExperimentArgs) -> Result<(), CliError> {
                 .or_else(|| specs.iter().position(|s| s.method == m))
         })
         .collect();
+    let config = trial::runner_config(config_dir, args.controllers.as_deref())?;
     let finished = run_all(
         config_dir,
+        &config,
         &specs,
         jobs,
         |spec| traced.iter().any(|&i| specs[i] == *spec),

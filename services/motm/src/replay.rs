@@ -13,12 +13,10 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use motm_core::on_the_move::OnTheMoveConfig;
 use motm_graph::replay::RawSample;
 use motm_graph::{Consumed, CycleRecord};
 use motm_sim::experiment::TrialLog;
 use motm_sim::replay::replay_log;
-use motm_sim::runner::RunnerConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::CliError;
@@ -200,8 +198,8 @@ pub struct ReplayArgs {
     /// Replay only this task.
     #[arg(long)]
     pub task: Option<String>,
-    /// Controller gains (TOML, the keys of the controllers' config) to replay with instead of
-    /// the defaults.
+    /// Controller gains (a controllers file, as `config/controllers.toml`) to replay with
+    /// (default: that file, the gains `motm trial` runs with).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Print one JSON object.
@@ -209,21 +207,13 @@ pub struct ReplayArgs {
     pub json: bool,
 }
 
-/// The controllers' config in `path` (unknown keys are errors naming the file and the key).
-pub fn load_controllers(path: &Path) -> Result<OnTheMoveConfig, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
-}
-
 /// `motm replay`.
 pub fn run(config_dir: &Path, args: &ReplayArgs) -> Result<(), CliError> {
     let (info, log) = read_log(&args.log).map_err(CliError::BadInput)?;
     let scenario_arg = info.scenario.to_string_lossy().into_owned();
     let (robot, scenario) = crate::trial::load(config_dir, &scenario_arg, Some(info.base_speed))?;
-    let mut config = RunnerConfig::default();
-    if let Some(path) = &args.config {
-        config.motm = load_controllers(path).map_err(CliError::BadInput)?;
-    }
+    // The gains to replay with: `--config`, else the ones the trial ran with by default.
+    let config = crate::trial::runner_config(config_dir, args.config.as_deref())?;
     let tasks = replay_log(
         &robot,
         &scenario,

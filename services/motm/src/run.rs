@@ -133,6 +133,35 @@ pub struct RunReport {
     pub swaps: Vec<SwapReport>,
 }
 
+/// Frame-to-command latencies of one run, from the QP status stream, µs.
+#[derive(Debug, Clone, Default)]
+pub struct Latencies {
+    /// From a frame's publication (`image_published_ns`) to the first QP command computed
+    /// from it (one sample per frame that reached a command).
+    pub frame_us: Vec<f64>,
+    /// From the exposure of the image behind the target (`image_stamp_ns`) to each QP
+    /// command that used it (one sample per QP cycle with a perceived target).
+    pub exposure_us: Vec<f64>,
+    /// Publication time of the newest frame seen in a status, ns.
+    last_frame_ns: u64,
+}
+
+impl Latencies {
+    /// Takes in one QP status.
+    pub fn record(&mut self, status: &QpStatus) {
+        let stamp = status.header.stamp_ns;
+        if status.image_stamp_ns > 0 {
+            self.exposure_us
+                .push(stamp.saturating_sub(status.image_stamp_ns) as f64 / 1e3);
+        }
+        if status.image_published_ns > self.last_frame_ns {
+            self.last_frame_ns = status.image_published_ns;
+            self.frame_us
+                .push(stamp.saturating_sub(status.image_published_ns) as f64 / 1e3);
+        }
+    }
+}
+
 /// Latest samples of everything `motm run` watches.
 struct Watch {
     truth: Latest<SimTruth>,
@@ -144,8 +173,8 @@ struct Watch {
     last_beats: Vec<Option<Heartbeat>>,
     /// QP status stream, when end-to-end latency is measured (`motm bench e2e`).
     qp_status: Option<Subscriber<QpStatus>>,
-    /// Camera-exposure-to-joint-command latencies seen so far, µs.
-    latencies_us: Vec<f64>,
+    /// Frame-to-command latencies seen so far.
+    latencies: Latencies,
     /// The drivers' counters over all their instances.
     drivers: DriverTotals,
 }
@@ -159,7 +188,7 @@ impl Watch {
             } else {
                 None
             },
-            latencies_us: Vec::new(),
+            latencies: Latencies::default(),
             drivers: DriverTotals::default(),
             truth: Latest::new(bus, services::SIM_TRUTH, &qos)?,
             status: Latest::new(bus, services::SUPERVISOR_STATUS, &qos)?,
@@ -179,11 +208,7 @@ impl Watch {
         let _ = self.truth.update();
         if let Some(qp) = self.qp_status.as_mut() {
             while let Ok(Some(sample)) = qp.receive() {
-                let status: &QpStatus = &sample;
-                if status.image_stamp_ns > 0 {
-                    let latency = status.header.stamp_ns.saturating_sub(status.image_stamp_ns);
-                    self.latencies_us.push(latency as f64 / 1e3);
-                }
+                self.latencies.record(&sample);
             }
         }
         let _ = self.status.update();
@@ -374,7 +399,7 @@ pub fn run_stack(
     config_dir: &Path,
     args: &RunArgs,
     measure_latency: bool,
-) -> Result<(RunReport, Vec<f64>), CliError> {
+) -> Result<(RunReport, Latencies), CliError> {
     let bad = |e: String| CliError::BadInput(e);
     let stack_path = StackConfig::resolve(config_dir, &args.config);
     let stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
@@ -541,7 +566,7 @@ pub fn run_stack(
         let (records, safe_stops) = fault_runner.finish();
         Ok((
             trial_result(watch.truth.get(), failure, wall.elapsed().as_secs_f64()),
-            std::mem::take(&mut watch.latencies_us),
+            std::mem::take(&mut watch.latencies),
             watch.processes(),
             std::mem::take(&mut watch.drivers),
             records,

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use motm_core::Robot;
+use motm_core::on_the_move::OnTheMoveConfig;
 use motm_sim::experiment::{Method, TrialResult, TrialSpec, TrialTrace};
 use motm_sim::runner::{RunnerConfig, run_trial};
 use motm_sim::{Scenario, scenario_path};
@@ -36,6 +37,24 @@ pub struct TrialArgs {
     /// MCAP file, for `motm replay` (MotM only).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// Controller gains (TOML; default: `controllers.toml` in the config folder, the file the
+    /// deployed stack reads).
+    #[arg(long)]
+    pub controllers: Option<PathBuf>,
+}
+
+/// The runner settings with the controller gains of `controllers` (default: the config
+/// folder's `controllers.toml`, as the deployed services read it); a bad file is bad input.
+pub fn runner_config(
+    config_dir: &Path,
+    controllers: Option<&Path>,
+) -> Result<RunnerConfig, CliError> {
+    let motm = OnTheMoveConfig::for_stack(config_dir, controllers)
+        .map_err(|e| CliError::BadInput(e.to_string()))?;
+    Ok(RunnerConfig {
+        motm,
+        ..RunnerConfig::default()
+    })
 }
 
 /// Loads a scenario and its robot, with the base speed overridden when given.
@@ -60,18 +79,11 @@ pub fn load(
 pub fn run_spec(
     config_dir: &Path,
     spec: &TrialSpec,
+    config: &RunnerConfig,
     trace: bool,
 ) -> Result<(TrialResult, Option<TrialTrace>), CliError> {
     let (robot, scenario) = load(config_dir, &spec.scenario, Some(spec.base_speed))?;
-    run_trial(
-        &robot,
-        &scenario,
-        spec.method,
-        spec.seed,
-        &RunnerConfig::default(),
-        trace,
-    )
-    .map_err(CliError::BadInput)
+    run_trial(&robot, &scenario, spec.method, spec.seed, config, trace).map_err(CliError::BadInput)
 }
 
 /// `motm trial`.
@@ -86,7 +98,7 @@ pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
     let config = RunnerConfig {
         record_cycles: args.trace_csv.is_some(),
         record_log: args.mcap.is_some(),
-        ..RunnerConfig::default()
+        ..runner_config(config_dir, args.controllers.as_deref())?
     };
     let (result, mut trace) = run_trial(
         &robot,

@@ -85,7 +85,8 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
         let mut odometry_out =
             Publisher::<BaseOdometry>::new(&bus, services::BASE_ODOMETRY, &qos).unwrap();
         let mut images_out =
-            Publisher::<CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large()).unwrap();
+            Publisher::<CameraImage>::new(&bus, services::CAMERA_IMAGE, &Qos::large().waking())
+                .unwrap();
         let mut estimates =
             Subscriber::<TargetEstimate>::new(&bus, services::PERCEPTION_TARGET, &qos).unwrap();
         let mut heartbeat =
@@ -105,9 +106,11 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
             odometry_out.publish(BaseOdometry::zeroed()).unwrap();
         };
         let mut publish_image = |width: u32| {
-            // Captured just now, after the joint state it is paired with.
+            // Captured and published just now, after the joint state it is paired with.
+            let now = monotonic_now_ns();
             images_out
-                .publish_with(Stamp::At(monotonic_now_ns()), |frame| {
+                .publish_with(Stamp::At(now), |frame| {
+                    frame.image_published_ns = now;
                     frame.width = width;
                     frame.height = CAMERA_HEIGHT as u32;
                     frame.pixels.copy_from_slice(&image);
@@ -133,6 +136,8 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
         );
         assert_eq!(estimate.visible, 1);
         assert!(estimate.image_stamp_ns > 0 && estimate.image_stamp_ns <= estimate.header.stamp_ns);
+        // The estimate names the frame it was computed from, published with its exposure.
+        assert_eq!(estimate.image_published_ns, estimate.image_stamp_ns);
 
         // A malformed image (wrong width) is dropped and counted, never processed.
         publish_image(CAMERA_WIDTH as u32 + 1);

@@ -7,21 +7,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Parser;
-use motm_bus::{Bus, Flow, IpcConfig, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
+use motm_bus::{Bus, Flow, IpcConfig, LoopConfig, Publisher, Qos, ServiceLoop};
 use motm_core::Robot;
-use motm_core::mission::{Phase, TaskKind};
-use motm_core::mission_tracker::{
-    FinalProgress, MissionTracker, MissionTrackerInput, MissionTrackerOutput,
-};
 use motm_core::on_the_move::OnTheMoveConfig;
-use motm_msgs::{
-    BaseOdometry, JointState, MissionState, SupervisorStatus, TaskKindCode, TwistCommand, services,
-};
+use motm_msgs::{SupervisorStatus, services};
+use motm_runtime::TaskPorts;
 use motm_sim::Scenario;
 use motm_supervisor::swap::SwapDriver;
 use motm_supervisor::{LaunchContext, LaunchSpec, ProcessTable, StackConfig, TableEvent, binaries};
-use motm_wire::controllers::ControllerLatest;
-use motm_wire::convert;
+use motm_tasks::mission::MissionSequencerTask;
 use nalgebra::Vector3;
 
 /// Exit code for bad input (a bad file, key or value).
@@ -70,7 +64,7 @@ struct Setup {
     stack: StackConfig,
     specs: Vec<LaunchSpec>,
     control_rate_hz: f64,
-    mission: Option<MissionTracker>,
+    mission: Option<MissionSequencerTask>,
 }
 
 fn setup(args: &Args) -> Result<Setup, String> {
@@ -104,7 +98,10 @@ fn setup(args: &Args) -> Result<Setup, String> {
     if let Some(v) = args.base_speed {
         scenario_file.set_base_speed(v).map_err(|e| e.to_string())?;
     }
+    let controllers_file = stack.controllers_file(&config_dir);
+    let controllers = OnTheMoveConfig::load(&controllers_file).map_err(|e| e.to_string())?;
     let context = LaunchContext {
+        controllers: controllers_file,
         config_dir: config_dir.clone(),
         scenario: scenario.clone(),
         base_speed: scenario_file.base_speed,
@@ -126,9 +123,9 @@ fn setup(args: &Args) -> Result<Setup, String> {
     } else {
         let robot = Robot::load(&config_dir, &scenario_file.robot).map_err(|e| e.to_string())?;
         let start = scenario_file.start();
-        Some(MissionTracker::new(
+        Some(MissionSequencerTask::new(
             robot,
-            OnTheMoveConfig::default(),
+            controllers,
             scenario_file.mission_tasks(),
             Vector3::new(start.x, start.y, 0.0),
         ))
@@ -171,93 +168,35 @@ fn log(events: &[TableEvent]) {
     }
 }
 
-/// The mission task's bus inputs and the stamps that guard them.
-struct MissionPorts {
-    joints: Latest<JointState>,
-    odometry: Latest<BaseOdometry>,
-    target: Latest<motm_msgs::TargetEstimate>,
-    final_twist: ControllerLatest<TwistCommand>,
-    state: Publisher<MissionState>,
-    /// When the current task started, ns: older perception estimates belong to another object.
-    task_started_ns: u64,
+/// The mission task on the bus: its ports, stepped once per supervisor cycle.
+struct Mission {
+    task: MissionSequencerTask,
+    ports: TaskPorts<MissionSequencerTask>,
 }
 
-impl MissionPorts {
-    fn new(bus: &Bus, now_ns: u64) -> Result<Self, motm_bus::BusError> {
-        let qos = Qos::default();
+impl Mission {
+    fn open(bus: &Bus, task: MissionSequencerTask) -> Result<Self, motm_bus::BusError> {
         Ok(Self {
-            joints: Latest::new(bus, services::ARM_JOINT_STATE, &qos)?,
-            odometry: Latest::new(bus, services::BASE_ODOMETRY, &qos)?,
-            target: Latest::new(bus, services::PERCEPTION_TARGET, &qos)?,
-            final_twist: ControllerLatest::new(bus, services::CONTROL_FINAL_TWIST, &qos)?,
-            state: Publisher::new(bus, services::MISSION_STATE, &qos)?,
-            task_started_ns: now_ns,
+            task,
+            ports: TaskPorts::open(bus, &motm_graph::MISSION)?,
         })
     }
 
-    /// One mission cycle at `now_ns`: read, step, publish. Task progress is taken from the
-    /// `active` final-phase controller (any, until a hot swap names one).
-    fn cycle(&mut self, tracker: &mut MissionTracker, now_ns: u64, active: Option<u32>) {
-        // A failed read leaves the previous value, which the stamps guard.
-        let _ = self.joints.update();
-        let _ = self.odometry.update();
-        let _ = self.target.update();
-        let _ = self.final_twist.update();
-        let out = match (self.joints.get(), self.odometry.get()) {
-            (Some(joints), Some(odometry)) => {
-                let estimate = self
-                    .target
-                    .get()
-                    .map(convert::perceived)
-                    .filter(|p| p.stamp_ns >= self.task_started_ns)
-                    .map(|p| p.estimate);
-                let final_progress = self.final_twist.get(active).and_then(|m| {
-                    Some(FinalProgress {
-                        task_index: m.task_index as usize,
-                        progress: convert::progress(m)?,
-                    })
-                });
-                tracker.step(&MissionTrackerInput {
-                    base: convert::base_pose(odometry),
-                    arm_q: convert::arm_q(joints),
-                    estimate,
-                    final_progress,
-                })
-            }
-            _ => tracker.output(f64::INFINITY, false),
-        };
-        if out.changed {
+    /// One mission cycle at `now_ns` (read, step, publish); logs a change of task or phase.
+    fn cycle(&mut self, now_ns: u64) {
+        self.ports.step(&mut self.task, now_ns);
+        if let Some(out) = self.task.last().filter(|out| out.changed) {
             eprintln!(
                 "supervisor: mission task {}/{} phase {:?} (tool to target {:.3} m)",
                 out.task_index, out.task_count, out.phase, out.tool_to_target
             );
-            if out.phase != Phase::Final {
-                self.task_started_ns = now_ns;
-            }
         }
-        let _ = self.state.publish(mission_state(&out));
     }
-}
 
-/// The [`MissionState`] message of a mission output.
-fn mission_state(out: &MissionTrackerOutput) -> MissionState {
-    use motm_msgs::Message;
-    let mut m = MissionState::zeroed();
-    m.task_index = out.task_index as u32;
-    m.task_count = out.task_count as u32;
-    m.task_kind = match out.kind {
-        Some(TaskKind::Pick) | None => TaskKindCode::Pick,
-        Some(TaskKind::Place) => TaskKindCode::Place,
-        Some(TaskKind::PressButton) => TaskKindCode::PressButton,
+    /// The base's forward speed in the latest odometry, m/s.
+    fn base_speed(&self) -> f64 {
+        self.ports.inputs().odometry.map_or(0.0, |o| o.v)
     }
-    .into();
-    m.phase = convert::phase_code(out.phase).into();
-    m.current_target = out.current_target.into();
-    if let Some(next) = out.next_target {
-        m.next_target = next.into();
-        m.has_next = 1;
-    }
-    m
 }
 
 fn run(setup: Setup) -> Result<(), String> {
@@ -265,17 +204,15 @@ fn run(setup: Setup) -> Result<(), String> {
         stack,
         specs,
         control_rate_hz,
-        mut mission,
+        mission,
     } = setup;
     let ipc = IpcConfig::from_env();
     let bus = Bus::open("supervisor").map_err(|e| e.to_string())?;
     let mut status =
         Publisher::<SupervisorStatus>::new(&bus, services::SUPERVISOR_STATUS, &Qos::default())
             .map_err(|e| e.to_string())?;
-    let mut ports = match mission {
-        Some(_) => {
-            Some(MissionPorts::new(&bus, motm_bus::monotonic_now_ns()).map_err(|e| e.to_string())?)
-        }
+    let mut mission = match mission {
+        Some(task) => Some(Mission::open(&bus, task).map_err(|e| e.to_string())?),
         None => None,
     };
     // Every port is open before the first child starts (and before the first status says so).
@@ -284,8 +221,8 @@ fn run(setup: Setup) -> Result<(), String> {
         .map_err(|e| e.to_string())?;
     let mut table = ProcessTable::new(specs, stack.restart, ipc);
     // The mission state is on the bus before the controllers start.
-    if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-        ports.cycle(tracker, motm_bus::monotonic_now_ns(), None);
+    if let Some(mission) = mission.as_mut() {
+        mission.cycle(motm_bus::monotonic_now_ns());
     }
     log(&table.start_all(motm_bus::monotonic_now_ns()));
     let _ = status.publish(table.status());
@@ -295,13 +232,11 @@ fn run(setup: Setup) -> Result<(), String> {
     let exit = service.run_periodic(|cycle| {
         let events = table.poll(cycle.now_ns);
         log(&events);
-        let base_speed = ports
-            .as_ref()
-            .and_then(|p| p.odometry.get())
-            .map_or(0.0, |o| o.v);
+        let base_speed = mission.as_ref().map_or(0.0, Mission::base_speed);
         let swapped = swap.poll(&mut table, cycle.now_ns, base_speed);
-        if let (Some(ports), Some(tracker)) = (ports.as_mut(), mission.as_mut()) {
-            ports.cycle(tracker, cycle.now_ns, swap.active_id());
+        // The mission follows the active controller on CONTROL_ACTIVE_CONTROLLER.
+        if let Some(mission) = mission.as_mut() {
+            mission.cycle(cycle.now_ns);
         }
         if swapped || !events.is_empty() || cycle.cycle % status_every == 0 {
             let _ = status.publish(table.status());

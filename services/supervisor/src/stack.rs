@@ -3,8 +3,9 @@
 //! `config/husky_ur5.toml`). Not to be confused with the robot model in `config/robots/`.
 //!
 //! Process arguments are templates: `{config_dir}`, `{scenario}`, `{base_speed}`, `{robot}`, `{seed}`,
-//! `{rate}` (the process's own rate), `{control_rate}` and `{stack}` (this file) are replaced
-//! when the process is launched.
+//! `{rate}` (the process's own rate), `{control_rate}`, `{stack}` (this file) and
+//! `{controllers}` (the controllers file, `controllers`) are replaced when the process is
+//! launched.
 
 use std::path::{Path, PathBuf};
 
@@ -16,7 +17,7 @@ use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
 use serde::Deserialize;
 
 /// The placeholders an argument template may use.
-pub const PLACEHOLDERS: [&str; 8] = [
+pub const PLACEHOLDERS: [&str; 9] = [
     "config_dir",
     "scenario",
     "base_speed",
@@ -25,6 +26,7 @@ pub const PLACEHOLDERS: [&str; 8] = [
     "rate",
     "control_rate",
     "stack",
+    "controllers",
 ];
 
 /// One process of the stack.
@@ -71,6 +73,10 @@ pub struct StackConfig {
     /// Default random seed.
     #[serde(default = "default_seed")]
     pub seed: u64,
+    /// Controller gains file (`OnTheMoveConfig`), relative to the config folder: the
+    /// supervisor's mission and every control service (`{controllers}`) use it.
+    #[serde(default = "default_controllers")]
+    pub controllers: PathBuf,
     /// Longest wait for the processes to exit after SIGTERM before SIGKILL, ms.
     #[serde(default = "default_shutdown_grace")]
     pub shutdown_grace_ms: f64,
@@ -99,6 +105,10 @@ fn default_seed() -> u64 {
     1
 }
 
+fn default_controllers() -> PathBuf {
+    PathBuf::from(motm_core::on_the_move::CONTROLLERS_FILE)
+}
+
 fn default_shutdown_grace() -> f64 {
     3000.0
 }
@@ -116,6 +126,8 @@ pub struct LaunchContext {
     pub seed: u64,
     /// Control rate, Hz (overrides the stack's `control_rate_hz`).
     pub control_rate_hz: f64,
+    /// The controllers file ([`StackConfig::controllers_file`]).
+    pub controllers: PathBuf,
 }
 
 impl StackConfig {
@@ -195,6 +207,11 @@ impl StackConfig {
         Ok(())
     }
 
+    /// The controllers file, in `config_dir` unless `controllers` is absolute.
+    pub fn controllers_file(&self, config_dir: &Path) -> PathBuf {
+        config_dir.join(&self.controllers)
+    }
+
     /// The named process, if listed.
     pub fn process(&self, name: &str) -> Option<&ProcessConfig> {
         self.processes.iter().find(|p| p.name == name)
@@ -217,6 +234,7 @@ impl StackConfig {
             ("rate", rate.to_string()),
             ("control_rate", context.control_rate_hz.to_string()),
             ("stack", self.path.display().to_string()),
+            ("controllers", context.controllers.display().to_string()),
         ];
         process
             .args
@@ -308,6 +326,23 @@ mod tests {
                 assert!(stack.process(name).is_some(), "{robot}: {name} missing");
             }
             assert!(stack.process("qp-resolver").unwrap().control_path);
+            // Every control service and the mission take their gains from the one file.
+            let controllers = stack.controllers_file(&config_dir());
+            motm_core::on_the_move::OnTheMoveConfig::load(&controllers).unwrap();
+            for name in [
+                "perception",
+                "base-planner",
+                "reacher",
+                "final-phase",
+                "qp-resolver",
+            ] {
+                let args = &stack.process(name).unwrap().args;
+                assert!(
+                    args.windows(2)
+                        .any(|w| w[0] == "--controllers" && w[1] == "{controllers}"),
+                    "{robot}: {name} {args:?}"
+                );
+            }
         }
     }
 
@@ -323,7 +358,7 @@ mod tests {
             args = ["--scenario", "{scenario}", "--rate", "{rate}", "--seed={seed}", "--base-speed", "{base_speed}"]
             [[process]]
             name = "reacher"
-            args = ["--rate", "{rate}", "--robot", "{robot}", "--stack", "{stack}"]
+            args = ["--rate", "{rate}", "--robot", "{robot}", "--stack", "{stack}", "--controllers", "{controllers}"]
             "#,
         )
         .unwrap();
@@ -333,6 +368,7 @@ mod tests {
             base_speed: 0.5,
             seed: 7,
             control_rate_hz: 1000.0,
+            controllers: PathBuf::from("/c/controllers.toml"),
         };
         assert_eq!(
             stack.expand_args(&stack.processes[0], &context),
@@ -354,7 +390,9 @@ mod tests {
                 "--robot",
                 "frankie",
                 "--stack",
-                "stack.toml"
+                "stack.toml",
+                "--controllers",
+                "/c/controllers.toml"
             ]
         );
         assert_eq!(stack.processes[1].package(), "motm-reacher");

@@ -252,6 +252,28 @@ impl<M: Message> Publisher<M> {
         self.send(sample)
     }
 
+    /// Publishes a copy of `message` written straight into shared memory (never through the
+    /// stack, so large payloads cost one copy), with its header replaced by the next one.
+    pub fn publish_copy(&mut self, stamp: Stamp, message: &M) -> Result<(), BusError> {
+        let mut sample = self
+            .ports
+            .publisher
+            .loan_uninit()
+            .map_err(|e| port_error(&self.service, e))?;
+        // SAFETY: one whole `M` is copied into the loaned, properly aligned payload, which is
+        // then fully initialised.
+        let mut sample = unsafe {
+            std::ptr::copy_nonoverlapping(
+                message as *const M,
+                sample.payload_mut().as_mut_ptr(),
+                1,
+            );
+            sample.assume_init()
+        };
+        *sample.payload_mut().header_mut() = self.header(stamp);
+        self.send(sample)
+    }
+
     /// Connects to subscribers that appeared since the last send.
     pub fn update_connections(&self) {
         self.ports.refresh();

@@ -299,6 +299,66 @@ impl<'bus> ServiceLoop<'bus> {
         self.finish(result, stopped, 0)
     }
 
+    /// Runs `step` each time a sample is announced on any of `triggers`, and also when nothing
+    /// was announced for a whole period (`LoopConfig::period`) since the last cycle, so a
+    /// stalled upstream still gets cycles that act on it. Several announcements that arrive
+    /// together run one cycle. Ends like [`ServiceLoop::run_periodic`].
+    pub fn run_on_arrival(
+        &mut self,
+        triggers: &[Trigger],
+        mut step: impl FnMut(&CycleContext) -> Flow,
+    ) -> Result<LoopExit, BusError> {
+        let waitset = Self::waitset()?;
+        let guards = triggers
+            .iter()
+            .map(|t| waitset.attach_notification(t.listener()))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| BusError::Loop(format!("{e:?}")))?;
+        // A WaitSet needs an attachment to wait on; without triggers this is the timeout only.
+        let idle = guards
+            .is_empty()
+            .then(|| waitset.attach_interval(self.config.period))
+            .transpose()
+            .map_err(|e| BusError::Loop(format!("{e:?}")))?;
+        let period_ns = self.config.period.as_nanos() as u64;
+        let mut last_cycle_ns = monotonic_now_ns();
+        let result = loop {
+            let now = monotonic_now_ns();
+            let timeout = Duration::from_nanos((last_cycle_ns + period_ns).saturating_sub(now));
+            let mut arrived = false;
+            let waited = waitset.wait_and_process_once_with_timeout(
+                |id| {
+                    if guards.iter().any(|g| id.has_event_from(g)) {
+                        arrived = true;
+                    }
+                    CallbackProgression::Continue
+                },
+                timeout,
+            );
+            match waited {
+                Ok(WaitSetRunResult::Interrupt)
+                    if !iceoryx2_bb_posix::signal::SignalHandler::termination_requested() => {}
+                Ok(WaitSetRunResult::AllEventsHandled) => {}
+                other => break other,
+            }
+            if arrived {
+                for trigger in triggers {
+                    trigger.clear();
+                }
+            }
+            let now = monotonic_now_ns();
+            if arrived || now >= last_cycle_ns + period_ns {
+                last_cycle_ns = now;
+                if self.cycle(None, &mut step) == Flow::Stop {
+                    break Ok(WaitSetRunResult::StopRequest);
+                }
+            }
+        };
+        drop(idle);
+        let stopped = matches!(result, Ok(WaitSetRunResult::StopRequest));
+        self.finish(result, stopped, period_ns)
+    }
+
     /// A WaitSet that reports SIGTERM and SIGINT (see [`process_until_signalled`]).
     fn waitset() -> Result<WaitSet<ipc::Service>, BusError> {
         WaitSetBuilder::new()

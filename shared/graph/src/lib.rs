@@ -14,4 +14,6 @@ pub use membus::{MemBus, MemPort, ReaderId};
 pub use motm_msgs::{Topic, TopicSpec, topics};
 pub use scheduler::{CycleRecord, Scheduler};
 pub use spec::*;
-pub use task::{Consumed, PortSet, Sink, Source, Task, boxed_copy, boxed_zeroed, consumed};
+pub use task::{
+    Consumed, PortSet, Sink, Source, Task, TopicVisitor, boxed_copy, boxed_zeroed, consumed,
+};

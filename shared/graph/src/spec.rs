@@ -81,6 +81,14 @@ impl TaskSpec {
     pub fn is_process(&self) -> bool {
         self.host == Host::Process
     }
+
+    /// Whether a sample's arrival on `topic` runs a cycle of the task ([`Trigger::Arrival`]).
+    pub fn triggered_by(&self, topic: &str) -> bool {
+        match self.trigger {
+            Trigger::Timer => false,
+            Trigger::Arrival(topics) => topics.iter().any(|t| t.name == topic),
+        }
+    }
 }
 
 /// The simulated hardware.
@@ -351,6 +359,12 @@ pub fn task(name: &str) -> Option<&'static TaskSpec> {
     GRAPH.iter().find(|t| t.name == name)
 }
 
+/// Whether some task of [`GRAPH`] runs on the arrival of samples on `topic`, so that its
+/// publishers must wake the readers.
+pub fn wakes_readers(topic: &str) -> bool {
+    GRAPH.iter().any(|t| t.triggered_by(topic))
+}
+
 /// The tasks that run as processes of their own, in start order.
 pub fn processes() -> impl Iterator<Item = &'static TaskSpec> {
     GRAPH.iter().filter(|t| t.is_process())
@@ -420,5 +434,21 @@ mod tests {
         assert_eq!(names.len(), GRAPH.len() - 1);
         assert!(!names.contains(&"mission"));
         assert_eq!(task("qp-resolver").map(|t| t.control_path), Some(true));
+    }
+
+    #[test]
+    fn the_event_driven_chain_wakes_on_image_target_and_twists_only() {
+        for topic in [
+            t::CAMERA_IMAGE.name(),
+            t::PERCEPTION_TARGET.name(),
+            t::CONTROL_REACH_TWIST.name(),
+            t::CONTROL_FINAL_TWIST.name(),
+        ] {
+            assert!(wakes_readers(topic), "{topic}");
+        }
+        assert!(!wakes_readers(t::ARM_JOINT_STATE.name()));
+        assert!(PERCEPTION.triggered_by(t::CAMERA_IMAGE.name()));
+        assert!(!BASE_PLANNER.triggered_by(t::PERCEPTION_TARGET.name()));
+        assert!(QP_RESOLVER.triggered_by(t::CONTROL_FINAL_TWIST.name()));
     }
 }

@@ -78,6 +78,16 @@ pub trait PortSet {
 
     /// The samples held, by topic and sequence number (what a cycle consumed, for replay).
     fn held(&self, out: &mut Vec<Consumed>);
+
+    /// Calls `visitor` once per topic of the set, typed, in field order (a runtime opens its
+    /// ports with it before the first cycle).
+    fn visit<V: TopicVisitor>(visitor: &mut V);
+}
+
+/// Something that is shown every typed topic of a [`PortSet`] ([`PortSet::visit`]).
+pub trait TopicVisitor {
+    /// One topic of the set.
+    fn topic<T: Message>(&mut self, topic: Topic<T>);
 }
 
 /// The [`Consumed`] record of one sample on `topic`.
@@ -190,6 +200,11 @@ macro_rules! ports {
             #[allow(unused_variables)]
             fn held(&self, out: &mut Vec<$crate::Consumed>) {
                 $($crate::ports!(@held $kind out, $topic, self.$field);)*
+            }
+
+            #[allow(unused_variables)]
+            fn visit<V: $crate::TopicVisitor>(visitor: &mut V) {
+                $(visitor.topic($topic);)*
             }
         }
     };

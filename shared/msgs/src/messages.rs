@@ -358,6 +358,9 @@ pub struct TargetEstimate {
     pub header: Header,
     /// Stamp of the camera image the estimate was last updated from, ns (≤ `header.stamp_ns`).
     pub image_stamp_ns: u64,
+    /// Publication time of that image ([`CameraImage::image_published_ns`]), ns: at or after
+    /// `image_stamp_ns`, at or before `header.stamp_ns`; 0 when unknown.
+    pub image_published_ns: u64,
     /// Object centre in the world, m.
     pub position: [f64; 3],
     /// Object velocity in the world, m/s.
@@ -376,6 +379,7 @@ message!(TargetEstimate, |m, c| {
             RejectReason::Inconsistent("image stamp after the estimate's own stamp"),
         ));
     }
+    image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
     c.all_within("position", &m.position, envelope::WORLD_POSITION)?;
     c.all_within("velocity", &m.velocity, envelope::OBJECT_SPEED)?;
     flag(c, "visible", m.visible)?;
@@ -448,6 +452,9 @@ pub struct CameraImage {
     pub width: u32,
     /// Image height, pixels; must equal [`CAMERA_HEIGHT`].
     pub height: u32,
+    /// When the frame was published, ns (monotonic, at or after the exposure `header.stamp_ns`):
+    /// the start of the frame-to-command latency.
+    pub image_published_ns: u64,
     /// Pixels, `(row * width + column) * 3 + channel`.
     pub pixels: [u8; CAMERA_IMAGE_BYTES],
 }
@@ -474,8 +481,41 @@ message!(CameraImage, |m, c| {
         f64::from(m.height),
         CAMERA_HEIGHT as f64,
         CAMERA_HEIGHT as f64,
-    )
+    )?;
+    if m.image_published_ns < m.header.stamp_ns {
+        return Err(c.reject(
+            "image_published_ns",
+            None,
+            RejectReason::Inconsistent("frame published before its exposure"),
+        ));
+    }
+    Ok(())
 });
+
+/// Checks an image publication time carried downstream: 0 (unknown), or at or after the
+/// image's exposure `image_stamp_ns` and at or before the carrying message's own `stamp_ns`.
+fn image_published(
+    c: Check,
+    image_stamp_ns: u64,
+    image_published_ns: u64,
+    stamp_ns: u64,
+) -> Result<(), Rejection> {
+    if image_published_ns == 0 {
+        return Ok(());
+    }
+    let reason = if image_published_ns > stamp_ns {
+        "image published after the message's own stamp"
+    } else if image_published_ns < image_stamp_ns {
+        "image published before its exposure"
+    } else {
+        return Ok(());
+    };
+    Err(c.reject(
+        "image_published_ns",
+        None,
+        RejectReason::Inconsistent(reason),
+    ))
+}
 
 code_enum!(
     /// Lifecycle state of a process, reported in its heartbeat.
@@ -706,6 +746,9 @@ pub struct QpStatus {
     /// when the target was not a perception estimate): the end-to-end latency of the command
     /// is `header.stamp_ns - image_stamp_ns`.
     pub image_stamp_ns: u64,
+    /// Publication time of that image, ns (0 when the target was not a perception estimate):
+    /// the frame-to-command latency is `header.stamp_ns - image_published_ns`.
+    pub image_published_ns: u64,
     /// The world twist that was resolved, after the twist rate limit
     /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s: the tool's commanded motion, which the reacher
     /// feeds back as its tool state (all zero when the command was a stop).
@@ -723,6 +766,7 @@ message!(QpStatus, |m, c| {
             RejectReason::Inconsistent("image stamp after the status's own stamp"),
         ));
     }
+    image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
     for i in 0..6 {
         let max = if i < 3 {
             envelope::EE_SPEED

@@ -312,6 +312,7 @@ fn target_estimate_rejects_bad_fields() {
     let ok = TargetEstimate {
         header: header(),
         image_stamp_ns: NOW - 20_000_000,
+        image_published_ns: NOW - 19_000_000,
         position: [2.0, 0.0, 0.45],
         velocity: [0.03, 0.0, 0.0],
         visible: 1,
@@ -326,6 +327,24 @@ fn target_estimate_rejects_bad_fields() {
         "image_stamp_ns",
         None,
         inconsistent,
+    );
+    for published in [ok.header.stamp_ns + 1, ok.image_stamp_ns - 1] {
+        assert_rejected(
+            &TargetEstimate {
+                image_published_ns: published,
+                ..ok
+            },
+            "image_published_ns",
+            None,
+            inconsistent,
+        );
+    }
+    assert_eq!(
+        check(&TargetEstimate {
+            image_published_ns: 0,
+            ..ok
+        }),
+        Ok(())
     );
     let mut m = ok;
     m.position[2] = f64::INFINITY;
@@ -382,11 +401,15 @@ fn camera_image_rejects_a_wrong_size() {
     m.header = header();
     m.width = CAMERA_WIDTH as u32;
     m.height = CAMERA_HEIGHT as u32;
+    m.image_published_ns = m.header.stamp_ns;
     assert_eq!(check(&m), Ok(()));
     assert_eq!(
         core::mem::size_of::<CameraImage>(),
-        24 + 8 + CAMERA_IMAGE_BYTES
+        24 + 8 + 8 + CAMERA_IMAGE_BYTES
     );
+    m.image_published_ns = m.header.stamp_ns - 1;
+    assert_rejected(&m, "image_published_ns", None, inconsistent);
+    m.image_published_ns = m.header.stamp_ns;
     m.width = 160;
     assert_rejected(&m, "width", None, out_of_range);
     m.width = CAMERA_WIDTH as u32;
@@ -552,7 +575,8 @@ fn qp_status_rejects_bad_fields() {
         objective: -3.5,
         slack_norm: 0.01,
         image_stamp_ns: NOW - 40_000_000,
-        twist: [0.1, -0.2, 0.3, 0.0, 0.5, -0.5],
+        image_published_ns: NOW - 39_000_000,
+        twist: [0.1, 0.0, 0.0, 0.0, 0.0, 0.2],
     };
     assert_eq!(check(&ok), Ok(()));
     let mut fast = ok;
@@ -591,6 +615,17 @@ fn qp_status_rejects_bad_fields() {
         None,
         inconsistent,
     );
+    for published in [ok.header.stamp_ns + 1, ok.image_stamp_ns - 1] {
+        assert_rejected(
+            &QpStatus {
+                image_published_ns: published,
+                ..ok
+            },
+            "image_published_ns",
+            None,
+            inconsistent,
+        );
+    }
 }
 
 #[test]

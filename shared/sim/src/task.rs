@@ -150,6 +150,8 @@ impl Task for SimWorldTask {
             let mut image = boxed_zeroed::<msgs::CameraImage>();
             messages::camera_image(&frame, &mut image);
             image.header.stamp_ns = stamp.max(1);
+            // Published in this cycle: the start of the frame-to-command latency.
+            image.image_published_ns = now_ns.max(image.header.stamp_ns);
             Arc::from(image)
         });
         let status = self.sim.status();

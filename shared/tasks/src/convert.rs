@@ -237,12 +237,13 @@ pub fn gripper_command(command: GripperCommand, controller_id: u32) -> msgs::Gri
 }
 
 /// The QP status message of one resolve that took `solve_time_ns`, for a command that used the
-/// image captured at `image_stamp_ns` (if any). `objective` stays zero: the resolver does not
-/// report it.
+/// image captured at `image_stamp_ns` and published at `image_published_ns` (if any).
+/// `objective` stays zero: the resolver does not report it.
 pub fn qp_status(
     out: &ResolverOutput,
     solve_time_ns: u64,
     image_stamp_ns: Option<u64>,
+    image_published_ns: Option<u64>,
 ) -> msgs::QpStatus {
     let mut m = msgs::QpStatus::zeroed();
     m.outcome = match out.status {
@@ -256,6 +257,7 @@ pub fn qp_status(
     let slack = out.slack.norm();
     m.slack_norm = if slack.is_finite() { slack } else { 0.0 };
     m.image_stamp_ns = image_stamp_ns.unwrap_or(0);
+    m.image_published_ns = image_published_ns.unwrap_or(0);
     m
 }
 
@@ -327,7 +329,7 @@ mod tests {
             status: ResolveStatus::SolverFailed,
             iterations: 3,
         };
-        let mut status = qp_status(&resolved, 1_000, Some(42));
+        let mut status = qp_status(&resolved, 1_000, Some(42), Some(45));
         // Publishing stamps the header at or after the image.
         status.header.stamp_ns = 50;
         valid(&status);
@@ -336,6 +338,7 @@ mod tests {
             Ok(msgs::QpOutcome::Failed)
         );
         assert_eq!((status.image_stamp_ns, status.slack_norm), (42, 0.0));
+        assert_eq!(status.image_published_ns, 45);
         let gripper = gripper_command(GripperCommand::Close, 4);
         valid(&gripper);
         assert_eq!(gripper.action(), Some(msgs::GripperAction::Close));

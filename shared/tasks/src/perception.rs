@@ -122,7 +122,12 @@ impl Task for PerceptionTask {
         let report = self.cycle.observe(&mission, &frame);
         self.published += u64::from(report.is_some());
         PerceptionOutputs {
-            target: report.map(|r| convert::stamped(convert::target_message(&r), now_ns)),
+            target: report.map(|r| {
+                let mut m = convert::target_message(&r);
+                // The frame this estimate was computed from: the start of its latency.
+                m.image_published_ns = image.image_published_ns;
+                convert::stamped(m, now_ns)
+            }),
         }
     }
 }

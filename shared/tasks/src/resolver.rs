@@ -127,7 +127,12 @@ impl Task for ResolverTask {
             }),
         });
         let solve_ns = started.elapsed().as_nanos() as u64;
-        let mut status = convert::qp_status(&out.resolved, solve_ns, snapshot.image_stamp_ns);
+        let mut status = convert::qp_status(
+            &out.resolved,
+            solve_ns,
+            snapshot.image_stamp_ns,
+            snapshot.image_published_ns,
+        );
         status.twist = out.twist.into();
         ResolverOutputs {
             arm: Some(convert::stamped(

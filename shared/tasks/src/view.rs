@@ -33,6 +33,9 @@ pub struct Snapshot<'a> {
     pub target: Option<TargetEstimate>,
     /// Capture stamp of the image behind `target`, ns, when it is a perception estimate.
     pub image_stamp_ns: Option<u64>,
+    /// Publication time of the frame perception computed `target` from, ns, when it is a
+    /// perception estimate that carries one.
+    pub image_published_ns: Option<u64>,
 }
 
 /// The raw shared inputs of one cycle.
@@ -92,6 +95,11 @@ impl ControlView {
             measured,
             target: selected.map(|s| s.target),
             image_stamp_ns: selected.and_then(|s| s.image_stamp_ns),
+            image_published_ns: selected
+                .and_then(|s| s.image_stamp_ns)
+                .and(raw.target)
+                .map(|t| t.image_published_ns)
+                .filter(|&ns| ns > 0),
         }
     }
 }

@@ -9,6 +9,7 @@ use motm_core::camera::{CameraCalibration, CameraConfig};
 use motm_core::on_the_move::OnTheMoveConfig;
 use motm_sim::Scenario;
 use motm_sim::render::PalmCamera;
+use motm_tasks::ControlSetup;
 
 /// Robot used when neither `--robot` nor a scenario names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
@@ -34,6 +35,10 @@ pub struct ServiceArgs {
     /// Cycle rate, Hz.
     #[arg(long, default_value_t = 200.0)]
     pub rate: f64,
+    /// Controller gains (TOML; default: `controllers.toml` in the config folder, else the
+    /// built-in defaults).
+    #[arg(long)]
+    pub controllers: Option<PathBuf>,
 }
 
 /// Everything a control service loads at start-up.
@@ -73,7 +78,8 @@ impl ServiceSetup {
             .or_else(|| scenario.as_ref().map(|s| s.robot.clone()))
             .unwrap_or_else(|| DEFAULT_ROBOT.to_owned());
         let robot = Robot::load(&config_dir, &robot_name).map_err(|e| e.to_string())?;
-        let mut config = OnTheMoveConfig::default();
+        let mut config = OnTheMoveConfig::for_stack(&config_dir, args.controllers.as_deref())
+            .map_err(|e| e.to_string())?;
         if let Some(speed) = args.base_speed {
             match scenario.as_mut() {
                 Some(s) => s.set_base_speed(speed).map_err(|e| e.to_string())?,
@@ -91,6 +97,15 @@ impl ServiceSetup {
             seed: args.seed,
             rate_hz: args.rate,
         })
+    }
+
+    /// What the control tasks are built from.
+    pub fn control(&self) -> ControlSetup {
+        ControlSetup {
+            robot: self.robot.clone(),
+            config: self.config.clone(),
+            rate_hz: self.rate_hz,
+        }
     }
 
     /// The cycle period.
@@ -122,23 +137,4 @@ pub fn exit_on_error<T, E: std::fmt::Display>(process: &str, result: Result<T, E
             std::process::exit(2);
         }
     }
-}
-
-/// Prints the closing line of a service: cycles, deadline misses, p99 and longest cycle time,
-/// rejected messages, and `details` from the service itself.
-pub fn report_exit(
-    process: &str,
-    service: &mut motm_bus::ServiceLoop<'_>,
-    bus: &motm_bus::Bus,
-    details: &str,
-) {
-    let stats = service.stats_mut();
-    let p99_us = stats.percentile_ns(99.0) / 1000;
-    eprintln!(
-        "{process}: stopped after {} cycles, {} deadline misses, p99 cycle {p99_us} us, max {} us, {} rejected messages; {details}",
-        stats.cycles(),
-        stats.deadline_misses(),
-        stats.max_cycle_ns() / 1000,
-        bus.rejected_messages()
-    );
 }

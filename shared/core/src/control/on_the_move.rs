@@ -22,11 +22,14 @@
 //! - **Base target rate limit** ([`crate::base_command_rate`]): the base controller's velocity
 //!   target reaches the QP with its change limited to the base's acceleration limits.
 
+use std::path::Path;
+
 use serde::Deserialize;
 
 use crate::base_command_rate::BaseCommandRateConfig;
 use crate::base_controller::BaseControllerConfig;
 use crate::base_slip::BaseSlipConfig;
+use crate::error::ModelError;
 use crate::final_phase::FinalPhaseConfig;
 use crate::mission::MissionConfig;
 use crate::reacher::ReacherConfig;
@@ -70,6 +73,9 @@ impl TwistRateLimit {
     }
 }
 
+/// The controllers file of a config folder (`config/controllers.toml`).
+pub const CONTROLLERS_FILE: &str = "controllers.toml";
+
 /// Every tunable of the composed MotM controller, by module. Every key is optional.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -110,5 +116,105 @@ impl Default for OnTheMoveConfig {
             base_slip: BaseSlipConfig::default(),
             base_rate: BaseCommandRateConfig::default(),
         }
+    }
+}
+
+impl OnTheMoveConfig {
+    /// Loads and checks a controllers file (`config/controllers.toml`: tables by module, every
+    /// key optional); unknown keys and bad values are errors naming the file and the key.
+    pub fn load(file: &Path) -> Result<Self, ModelError> {
+        let text = ModelError::read_to_string(file)?;
+        Self::from_toml_str(file, &text)
+    }
+
+    /// The controllers of a stack: `file` when given (relative paths as given), else
+    /// [`CONTROLLERS_FILE`] in `config_dir` when it exists, else the defaults. The deployed
+    /// services and the in-process trials take their gains from the same file this way.
+    pub fn for_stack(config_dir: &Path, file: Option<&Path>) -> Result<Self, ModelError> {
+        match file {
+            Some(file) => Self::load(file),
+            None => {
+                let default = config_dir.join(CONTROLLERS_FILE);
+                if default.is_file() {
+                    Self::load(&default)
+                } else {
+                    Ok(Self::default())
+                }
+            }
+        }
+    }
+
+    /// Parses and checks TOML text that came from `file`.
+    pub fn from_toml_str(file: &Path, text: &str) -> Result<Self, ModelError> {
+        let config: Self = ModelError::parse_toml_str(file, text)?;
+        config.validate(file)?;
+        Ok(config)
+    }
+
+    /// Checks the modules' values; `file` is named in the error.
+    pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
+        self.base.validate(file)?;
+        self.reacher.validate(file)?;
+        self.final_phase.validate(file)?;
+        let rates = [
+            (
+                "twist_rate.linear_acceleration",
+                self.twist_rate.linear_acceleration,
+            ),
+            (
+                "twist_rate.angular_acceleration",
+                self.twist_rate.angular_acceleration,
+            ),
+            ("max_position_error", self.max_position_error),
+        ];
+        for (key, value) in rates {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ModelError::invalid(
+                    file,
+                    key,
+                    format!("must be finite and positive, got {value}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod config_file_tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_controllers_file_is_the_defaults() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/controllers.toml");
+        let loaded = OnTheMoveConfig::load(&file).unwrap();
+        assert_eq!(
+            format!("{loaded:?}"),
+            format!("{:?}", OnTheMoveConfig::default())
+        );
+    }
+
+    #[test]
+    fn a_bad_controllers_file_names_the_file_and_the_key() {
+        let file = Path::new("gains.toml");
+        let cases = [
+            ("[reacher]\narm_sped_ratio = 0.5\n", "arm_sped_ratio"),
+            ("max_position_error = -1.0\n", "max_position_error"),
+            (
+                "[twist_rate]\nlinear_acceleration = nan\n",
+                "linear_acceleration",
+            ),
+        ];
+        for (text, key) in cases {
+            let err = OnTheMoveConfig::from_toml_str(file, text)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("gains.toml") && err.contains(key),
+                "{key}: {err}"
+            );
+        }
+        let tuned = OnTheMoveConfig::from_toml_str(file, "[reacher]\narm_speed_ratio = 0.4\n");
+        assert_eq!(tuned.unwrap().reacher.arm_speed_ratio, 0.4);
     }
 }
