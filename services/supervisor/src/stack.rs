@@ -256,7 +256,7 @@ impl StackConfig {
                     ),
                 ));
             }
-            last = Some((at, &process.name));
+            last = Some((at, process.name.as_str()));
         }
         if !self.partial
             && let Some(missing) = graph.iter().find(|g| self.process(g).is_none())
@@ -404,7 +404,7 @@ mod tests {
             for process in &stack.processes {
                 assert_eq!(
                     process.control_path(),
-                    motm_graph::task(&process.name).unwrap().control_path,
+                    motm_graph::task(&process.name).is_some_and(|t| t.control_path),
                     "{}: {}",
                     path.display(),
                     process.name
