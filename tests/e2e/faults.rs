@@ -246,7 +246,10 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         std::thread::sleep(Duration::from_millis(50));
     }
     for process in &processes {
-        assert!(bad_inputs_read_by(process) > 0, "{process} reads no bad input");
+        assert!(
+            bad_inputs_read_by(process) > 0,
+            "{process} reads no bad input"
+        );
     }
     let mut injectors: Vec<_> = BAD_INPUT_TOPICS
         .iter()

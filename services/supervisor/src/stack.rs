@@ -476,7 +476,10 @@ mod tests {
         let err = stack(&["watchdog", "qp-resolver"], true)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("'qp-resolver' must come before 'watchdog'"), "{err}");
+        assert!(
+            err.contains("'qp-resolver' must come before 'watchdog'"),
+            "{err}"
+        );
     }
 
     #[test]

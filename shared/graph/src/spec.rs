@@ -405,7 +405,12 @@ mod tests {
             let driver = task(stand_in.serves).expect("a task of the graph");
             assert!(driver.is_process() && !driver.sim_only, "{}", driver.name);
             for topic in stand_in.inputs.iter().chain(stand_in.outputs) {
-                assert!(published.contains(topic), "{}: {}", stand_in.name, topic.name);
+                assert!(
+                    published.contains(topic),
+                    "{}: {}",
+                    stand_in.name,
+                    topic.name
+                );
             }
         }
         assert_eq!(stand_in("fake-ld60").map(|s| s.serves), Some("ld60-driver"));
@@ -415,7 +420,10 @@ mod tests {
     fn every_topic_carries_the_schema_version() {
         let prefix = format!("{}/", motm_msgs::services::PREFIX);
         assert_eq!(prefix, format!("motm/v{}/", motm_msgs::SCHEMA_VERSION));
-        let swap = [t::SUPERVISOR_SWAP_REQUEST.name(), t::SUPERVISOR_SWAP_STATUS.name()];
+        let swap = [
+            t::SUPERVISOR_SWAP_REQUEST.name(),
+            t::SUPERVISOR_SWAP_STATUS.name(),
+        ];
         for name in published_topics().iter().map(|t| t.name).chain(swap) {
             assert!(name.starts_with(&prefix), "{name}");
         }
