@@ -186,8 +186,11 @@ fn raw_of<M: Message + ToJson>(topic: TopicSpec) -> Option<Box<dyn Source>> {
     (topic.type_name == M::NAME).then(|| Tap::<M>::boxed(topic.name, raw))
 }
 
+/// Makes the tap of a topic when its payload is of one type ([`raw_of`]).
+type TapMaker = fn(TopicSpec) -> Option<Box<dyn Source>>;
+
 /// The payload types the logger logs as JSON alone (see [`tap_of`]).
-const RAW_TAPS: &[fn(TopicSpec) -> Option<Box<dyn Source>>] = {
+const RAW_TAPS: &[TapMaker] = {
     use msgs::*;
     &[
         raw_of::<JointState>,

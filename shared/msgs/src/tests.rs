@@ -552,6 +552,7 @@ fn qp_status_rejects_bad_fields() {
         objective: -3.5,
         slack_norm: 0.01,
         image_stamp_ns: NOW - 40_000_000,
+        twist: [0.1, 0.0, 0.0, 0.0, 0.0, 0.05],
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
