@@ -1,7 +1,8 @@
 //! The systemd deployment: `deploy/install.sh` installs into a scratch folder, and
 //! `systemd-analyze verify` accepts every installed unit (the template for each process with
-//! its drop-ins, and `motm.target`) without a warning. Skipped, with a message, where
-//! `systemd-analyze` is not available.
+//! its drop-ins, and `motm.target`) without a warning; `motm.target` wants exactly the graph's
+//! processes that run on the robot. `systemd-analyze` is required: without it the test fails
+//! and says how to install it (`.ci/run` does).
 
 use std::path::Path;
 use std::process::Command;
@@ -24,15 +25,51 @@ fn verify(units: &Path, unit: &str) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// The units `motm.target` should want: one per process hosting a task of the graph that is not
+/// simulation-only (the mission task's is the supervisor), in the graph's order.
+fn robot_units() -> Vec<String> {
+    let mut units: Vec<String> = Vec::new();
+    for task in motm_graph::GRAPH.iter().filter(|t| !t.sim_only) {
+        let process = match task.host {
+            motm_graph::Host::Process => task.name,
+            motm_graph::Host::Supervisor => "supervisor",
+        };
+        let unit = format!("motm@{process}.service");
+        if !units.contains(&unit) {
+            units.push(unit);
+        }
+    }
+    units
+}
+
+#[test]
+fn motm_target_wants_the_graphs_processes_that_run_on_the_robot() {
+    let path = workspace_root().join("deploy/systemd/motm.target");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let wanted: Vec<String> = text
+        .lines()
+        .filter_map(|line| line.trim().strip_prefix("Wants="))
+        .flat_map(str::split_whitespace)
+        .map(String::from)
+        .collect();
+    let expected = robot_units();
+    assert!(expected.contains(&"motm@qp-resolver.service".to_string()));
+    assert!(!expected.contains(&"motm@sim-world.service".to_string()));
+    assert_eq!(
+        wanted,
+        expected,
+        "{}: the Wants= lines must name the graph's processes that are not sim_only, in order",
+        path.display()
+    );
+}
+
 #[test]
 fn installed_units_pass_systemd_analyze_verify() {
-    if Command::new("systemd-analyze")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        eprintln!("skipped: systemd-analyze is not available on this machine");
-        return;
+    if let Err(e) = Command::new("systemd-analyze").arg("--version").output() {
+        panic!(
+            "systemd-analyze is required for this test ({e}); install it with \
+             `apt-get install -y --no-install-recommends systemd` (Debian; `.ci/run` does)"
+        );
     }
     let root = std::env::temp_dir().join(format!("motm-deploy-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);

@@ -15,16 +15,17 @@ use std::time::{Duration, Instant};
 
 use motm_bus::inject::{Malformation, open_injector};
 use motm_bus::{Bus, IpcConfig, Latest, Qos};
-use motm_e2e::{STACK_PROCESSES, motm, one_stack_at_a_time, spawn_motm};
+use motm_e2e::{motm, one_stack_at_a_time, spawn_motm, stack_processes};
 use motm_msgs::{Heartbeat, services};
 
-/// The stack's services that a kill may hit: all but sim-world, the simulated robot and world
-/// (its state is the physics, not something the stack rebuilds), and the supervisor, the one
-/// that restarts the others.
+/// The stack's services that a kill may hit: the graph's processes but the simulation-only ones
+/// (sim-world, the simulated robot and world: its state is the physics, not something the
+/// stack rebuilds). The supervisor, the one that restarts the others, is no process of the
+/// graph.
 fn killable() -> impl Iterator<Item = &'static str> {
-    STACK_PROCESSES
-        .into_iter()
-        .filter(|process| !matches!(*process, "sim-world" | "supervisor"))
+    motm_graph::processes()
+        .filter(|t| !t.sim_only)
+        .map(|t| t.name)
 }
 
 /// Control period of the frankie stack (200 Hz), ms.
@@ -185,33 +186,32 @@ fn a_hung_qp_resolver_is_safe_stopped_within_three_cycles_and_control_resumes() 
     );
 }
 
-/// Which processes read each topic the test corrupts (so every process gets bad input).
-const BAD_INPUT_TOPICS: [(&str, &[&str]); 6] = [
-    (services::HW_ARM_COMMAND, &["sim-world"]),
-    (
-        services::ARM_VELOCITY_COMMAND,
-        &["panda-driver", "watchdog"],
-    ),
-    (
-        services::BASE_VELOCITY_COMMAND,
-        &["ld60-driver", "watchdog"],
-    ),
-    (
-        services::ARM_JOINT_STATE,
-        &[
-            "perception",
-            "reacher",
-            "final-phase",
-            "qp-resolver",
-            "supervisor",
-        ],
-    ),
-    (
-        services::MISSION_STATE,
-        &["base-planner", "reacher", "final-phase", "qp-resolver"],
-    ),
-    (services::CONTROL_REACH_TWIST, &["qp-resolver"]),
+/// The topics the test corrupts: between them, every process of the stack reads one.
+const BAD_INPUT_TOPICS: [&str; 6] = [
+    services::HW_ARM_COMMAND,
+    services::ARM_VELOCITY_COMMAND,
+    services::BASE_VELOCITY_COMMAND,
+    services::ARM_JOINT_STATE,
+    services::MISSION_STATE,
+    services::CONTROL_REACH_TWIST,
 ];
+
+/// How many of [`BAD_INPUT_TOPICS`] `process` reads, by the graph (the supervisor reads what
+/// its mission task does).
+fn bad_inputs_read_by(process: &str) -> u64 {
+    BAD_INPUT_TOPICS
+        .iter()
+        .filter(|topic| {
+            motm_graph::GRAPH.iter().any(|t| {
+                let host = match t.host {
+                    motm_graph::Host::Process => t.name,
+                    motm_graph::Host::Supervisor => "supervisor",
+                };
+                host == process && t.reads(topic)
+            })
+        })
+        .count() as u64
+}
 
 /// The latest `rejected_messages` per process, from the heartbeats.
 fn rejected_counts(beats: &mut [Latest<Heartbeat>]) -> Vec<Option<u64>> {
@@ -233,7 +233,8 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         prefix: prefix.clone(),
     };
     let bus = Bus::open_with("e2e-bad-input", &ipc).expect("bus");
-    let mut beats: Vec<Latest<Heartbeat>> = STACK_PROCESSES
+    let processes = stack_processes();
+    let mut beats: Vec<Latest<Heartbeat>> = processes
         .iter()
         .map(|p| Latest::new(&bus, &services::heartbeat(p), &Qos::default()).unwrap())
         .collect();
@@ -244,9 +245,15 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         assert!(child.try_wait().unwrap().is_none(), "motm run ended early");
         std::thread::sleep(Duration::from_millis(50));
     }
+    for process in &processes {
+        assert!(
+            bad_inputs_read_by(process) > 0,
+            "{process} reads no bad input"
+        );
+    }
     let mut injectors: Vec<_> = BAD_INPUT_TOPICS
         .iter()
-        .map(|(topic, _)| open_injector(&bus, topic).unwrap().expect("injectable"))
+        .map(|topic| open_injector(&bus, topic).unwrap().expect("injectable"))
         .collect();
     // Let the readers connect to the new publishers.
     std::thread::sleep(Duration::from_millis(500));
@@ -259,11 +266,8 @@ fn malformed_samples_on_every_process_are_dropped_counted_and_never_acted_on() {
         // Three heartbeat intervals for the counts to show.
         std::thread::sleep(Duration::from_millis(400));
         let after = rejected_counts(&mut beats);
-        for (i, process) in STACK_PROCESSES.iter().enumerate() {
-            let readers = BAD_INPUT_TOPICS
-                .iter()
-                .filter(|(_, r)| r.contains(process))
-                .count() as u64;
+        for (i, process) in processes.iter().enumerate() {
+            let readers = bad_inputs_read_by(process);
             let grew = after[i].unwrap().saturating_sub(before[i].unwrap());
             if readers > 0 && grew < readers {
                 failures.push(format!(

@@ -26,19 +26,14 @@ pub const STACK_PACKAGES: [&str; 12] = [
     "motm-logger",
 ];
 
-/// Every process of a Frankie run (the names of their heartbeats), the supervisor included.
-pub const STACK_PROCESSES: [&str; 10] = [
-    "sim-world",
-    "panda-driver",
-    "ld60-driver",
-    "perception",
-    "base-planner",
-    "reacher",
-    "final-phase",
-    "qp-resolver",
-    "watchdog",
-    "supervisor",
-];
+/// Every process of a Frankie run (the names of their heartbeats): the graph's processes, in
+/// start order, and the supervisor.
+pub fn stack_processes() -> Vec<&'static str> {
+    motm_graph::processes()
+        .map(|t| t.name)
+        .chain(["supervisor"])
+        .collect()
+}
 
 /// Builds [`STACK_PACKAGES`] once per test process.
 fn build_stack() {

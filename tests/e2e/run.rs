@@ -4,7 +4,7 @@
 //! behind.
 
 use motm_bus::IpcConfig;
-use motm_e2e::{STACK_PROCESSES, motm, processes_mentioning};
+use motm_e2e::{motm, processes_mentioning, stack_processes};
 
 /// Runs `motm run --json <extra>` with a fresh prefix; returns the report, whether the exit
 /// status was success, and stderr. Checks on the way what every run must satisfy, success or
@@ -31,7 +31,7 @@ fn run_and_check(extra: &[&str]) -> (serde_json::Value, bool, String) {
         "no truth from sim-world: {report}"
     );
     let processes = report["processes"].as_array().expect("processes");
-    for name in STACK_PROCESSES {
+    for name in stack_processes() {
         let p = processes
             .iter()
             .find(|p| p["name"] == name)
@@ -122,7 +122,7 @@ fn motm_run_names_missing_service_binaries_and_exits_1() {
     let stack = dir.join("missing.toml");
     std::fs::write(
         &stack,
-        "robot = \"frankie\"\nscenario = \"exp1-dynamic\"\n\
+        "robot = \"frankie\"\nscenario = \"exp1-dynamic\"\npartial = true\n\
          [[process]]\nname = \"no-such-service\"\n",
     )
     .unwrap();

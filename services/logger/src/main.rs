@@ -24,7 +24,7 @@ use motm_logger::recorder::{Recorder, topics};
 use motm_logger::{
     ChannelRegistry, LiveSink, LoggerConfig, McapSink, Record, SceneLayout, WritebackFile,
 };
-use motm_msgs::{self as msgs, Message, services};
+use motm_msgs::{self as msgs, Message, Topic, TopicSpec, services};
 use serde_json::json;
 
 /// Process (and heartbeat) name.
@@ -101,6 +101,14 @@ trait Source {
 }
 
 impl<M: Message> Tap<M> {
+    /// A tap of `topic` handling samples with `handle`.
+    fn typed(
+        topic: Topic<M>,
+        handle: fn(&mut Recorder, &str, &M, &mut Vec<Record>),
+    ) -> Box<dyn Source> {
+        Self::boxed(topic.name(), handle)
+    }
+
     /// A tap of `service` handling samples with `handle`.
     fn boxed(
         service: &str,
@@ -173,65 +181,93 @@ fn raw<M: Message + ToJson>(
     recorder.raw(service, sample, out);
 }
 
-/// Every fixed service of the stack with what is made of its samples.
-fn fixed_taps() -> Vec<Box<dyn Source>> {
-    use msgs::{
-        ActiveController, ArmVelocityCommand, BaseOdometry, BasePlan, BaseVelocityCommand,
-        DriverStatus, GripperCommand, GripperState, JointState, MissionState, QpStatus, SafeStop,
-        SimTruth, SupervisorStatus, SwapRequest, SwapStatus, TargetEstimate, TwistCommand,
-    };
+/// A tap of `topic` that logs its samples on their JSON channel only, when `M` is its payload.
+fn raw_of<M: Message + ToJson>(topic: TopicSpec) -> Option<Box<dyn Source>> {
+    (topic.type_name == M::NAME).then(|| Tap::<M>::boxed(topic.name, raw))
+}
+
+/// Makes the tap of a topic when its payload is of one type ([`raw_of`]).
+type TapMaker = fn(TopicSpec) -> Option<Box<dyn Source>>;
+
+/// The payload types the logger logs as JSON alone (see [`tap_of`]).
+const RAW_TAPS: &[TapMaker] = {
+    use msgs::*;
+    &[
+        raw_of::<JointState>,
+        raw_of::<GripperState>,
+        raw_of::<ArmVelocityCommand>,
+        raw_of::<GripperCommand>,
+        raw_of::<BaseOdometry>,
+        raw_of::<BaseVelocityCommand>,
+        raw_of::<TwistCommand>,
+        raw_of::<QpStatus>,
+        raw_of::<ActiveController>,
+        raw_of::<MissionState>,
+        raw_of::<SafeStop>,
+        raw_of::<DriverStatus>,
+    ]
+};
+
+/// The tap of one topic with what is made of its samples: the recorder's views of the topics
+/// it draws (robot, plan, target, truth, camera, process table) besides their JSON channel,
+/// the JSON channel alone for any other topic of a known payload type; `None` otherwise.
+fn tap_of(topic: TopicSpec) -> Option<Box<dyn Source>> {
+    use motm_msgs::topics as t;
     use services as s;
-    vec![
-        Tap::<JointState>::boxed(s::ARM_JOINT_STATE, |r, name, m, out| {
+    Some(match topic.name {
+        s::ARM_JOINT_STATE => Tap::typed(t::ARM_JOINT_STATE, |r, name, m, out| {
             r.raw(name, m, out);
             r.joint_state(m, out);
         }),
-        Tap::<BaseOdometry>::boxed(s::BASE_ODOMETRY, |r, name, m, out| {
+        s::BASE_ODOMETRY => Tap::typed(t::BASE_ODOMETRY, |r, name, m, out| {
             r.raw(name, m, out);
             r.odometry(m);
         }),
-        Tap::<BasePlan>::boxed(s::BASE_PLAN, |r, name, m, out| {
+        s::BASE_PLAN => Tap::typed(t::BASE_PLAN, |r, name, m, out| {
             r.raw(name, m, out);
             r.plan(m);
         }),
-        Tap::<TargetEstimate>::boxed(s::PERCEPTION_TARGET, |r, name, m, out| {
+        s::PERCEPTION_TARGET => Tap::typed(t::PERCEPTION_TARGET, |r, name, m, out| {
             r.raw(name, m, out);
             r.target(m, out);
         }),
-        Tap::<TwistCommand>::boxed(s::CONTROL_REACH_TWIST, |r, name, m, out| {
+        s::CONTROL_REACH_TWIST => Tap::typed(t::CONTROL_REACH_TWIST, |r, name, m, out| {
             r.raw(name, m, out);
             r.reach_twist(m);
         }),
-        Tap::<SimTruth>::boxed(s::SIM_TRUTH, |r, name, m, out| {
+        s::SIM_TRUTH => Tap::typed(t::SIM_TRUTH, |r, name, m, out| {
             r.raw(name, m, out);
             r.truth(m, out);
         }),
-        Tap::<msgs::CameraImage>::boxed(s::CAMERA_IMAGE, |r, _, m, out| r.camera(m, out)),
-        Tap::<GripperState>::boxed(s::ARM_GRIPPER_STATE, raw),
-        Tap::<ArmVelocityCommand>::boxed(s::ARM_VELOCITY_COMMAND, raw),
-        Tap::<GripperCommand>::boxed(s::ARM_GRIPPER_COMMAND, raw),
-        Tap::<BaseVelocityCommand>::boxed(s::BASE_VELOCITY_TARGET, raw),
-        Tap::<BaseVelocityCommand>::boxed(s::BASE_VELOCITY_COMMAND, raw),
-        Tap::<TwistCommand>::boxed(s::CONTROL_FINAL_TWIST, raw),
-        Tap::<QpStatus>::boxed(s::CONTROL_QP_STATUS, raw),
-        Tap::<ActiveController>::boxed(s::CONTROL_ACTIVE_CONTROLLER, raw),
-        Tap::<MissionState>::boxed(s::MISSION_STATE, raw),
-        Tap::<SafeStop>::boxed(s::SAFETY_SAFE_STOP, raw),
-        Tap::<ArmVelocityCommand>::boxed(s::HW_ARM_COMMAND, raw),
-        Tap::<JointState>::boxed(s::HW_ARM_STATE, raw),
-        Tap::<BaseVelocityCommand>::boxed(s::HW_BASE_COMMAND, raw),
-        Tap::<BaseOdometry>::boxed(s::HW_BASE_STATE, raw),
-        Tap::<GripperCommand>::boxed(s::HW_GRIPPER_COMMAND, raw),
-        Tap::<GripperState>::boxed(s::HW_GRIPPER_STATE, raw),
-        Tap::<DriverStatus>::boxed(s::ARM_DRIVER_STATUS, raw),
-        Tap::<DriverStatus>::boxed(s::BASE_DRIVER_STATUS, raw),
-        Tap::<SupervisorStatus>::boxed(s::SUPERVISOR_STATUS, |r, name, m, out| {
+        s::CAMERA_IMAGE => Tap::typed(t::CAMERA_IMAGE, |r, _, m, out| r.camera(m, out)),
+        s::SUPERVISOR_STATUS => Tap::typed(t::SUPERVISOR_STATUS, |r, name, m, out| {
             r.raw(name, m, out);
             r.supervisor_status(m);
         }),
-        Tap::<SwapRequest>::boxed(s::SUPERVISOR_SWAP_REQUEST, raw),
-        Tap::<SwapStatus>::boxed(s::SUPERVISOR_SWAP_STATUS, raw),
-    ]
+        _ => return RAW_TAPS.iter().find_map(|of| of(topic)),
+    })
+}
+
+/// Every fixed service of the stack with what is made of its samples: every topic the graph
+/// publishes ([`motm_graph::published_topics`]) and the supervisor's hot-swap services.
+fn fixed_taps() -> Vec<Box<dyn Source>> {
+    use motm_msgs::topics as t;
+    let mut taps: Vec<Box<dyn Source>> = motm_graph::published_topics()
+        .into_iter()
+        .filter_map(|topic| {
+            let tap = tap_of(topic);
+            if tap.is_none() {
+                eprintln!(
+                    "{PROCESS}: {} not logged: no tap for its payload {}",
+                    topic.name, topic.type_name
+                );
+            }
+            tap
+        })
+        .collect();
+    taps.push(Tap::typed(t::SUPERVISOR_SWAP_REQUEST, raw));
+    taps.push(Tap::typed(t::SUPERVISOR_SWAP_STATUS, raw));
+    taps
 }
 
 /// Finds the heartbeat services to tap. Each process's bus node is named after the process
@@ -540,5 +576,42 @@ fn stats(taps: &[Box<dyn Source>], sinks: &Sinks, now_ns: u64) -> Record {
             "live_sent_messages": live.sent_messages,
             "live_dropped_messages": live.dropped_messages,
         })),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_fixed_taps_are_the_graphs_published_topics_and_the_swap_services() {
+        let tapped: Vec<String> = fixed_taps()
+            .iter()
+            .map(|tap| tap.counts().0.to_owned())
+            .collect();
+        let mut expected: Vec<String> = motm_graph::published_topics()
+            .iter()
+            .map(|t| t.name.to_owned())
+            .collect();
+        expected.extend([
+            services::SUPERVISOR_SWAP_REQUEST.to_owned(),
+            services::SUPERVISOR_SWAP_STATUS.to_owned(),
+        ]);
+        assert_eq!(tapped, expected);
+        assert!(tapped.iter().any(|t| t == services::SIM_TRUTH));
+    }
+
+    #[test]
+    fn a_topic_of_an_unknown_payload_type_gets_no_tap() {
+        let unknown = TopicSpec {
+            name: "motm/v1/test/unknown",
+            type_name: "NoSuchMessage",
+        };
+        assert!(tap_of(unknown).is_none());
+        let known = TopicSpec {
+            name: "motm/v1/test/known",
+            type_name: <msgs::SafeStop as Message>::NAME,
+        };
+        assert_eq!(tap_of(known).unwrap().counts().0, "motm/v1/test/known");
     }
 }

@@ -402,6 +402,29 @@ mod tests {
     use motm_core::fault_schedule::parse_schedule;
 
     #[test]
+    fn injectable_topics_are_the_graphs_topics_of_a_corruptible_payload() {
+        let published = motm_graph::published_topics();
+        let payload = |name: &str| {
+            published
+                .iter()
+                .find(|t| t.name == name)
+                .map(|t| t.type_name)
+                .unwrap_or_else(|| panic!("{name} is injectable but no task publishes it"))
+        };
+        let corruptible: Vec<&str> = INJECTABLE_TOPICS.iter().map(|t| payload(t)).collect();
+        for topic in &published {
+            if corruptible.contains(&topic.type_name) {
+                assert!(
+                    INJECTABLE_TOPICS.contains(&topic.name),
+                    "{} carries a {} but is not injectable",
+                    topic.name,
+                    topic.type_name
+                );
+            }
+        }
+    }
+
+    #[test]
     fn targets_must_be_stack_processes_or_injectable_topics() {
         let processes = vec!["qp-resolver".to_string(), "reacher".to_string()];
         let ok = parse_schedule(&[

@@ -34,7 +34,8 @@ pub struct StatusRow {
     pub name: String,
     /// Pid (0 when not running).
     pub pid: u32,
-    /// Supervisor's view: pending, running, restarting, failed, stopped.
+    /// Supervisor's view: pending, running, restarting, failed, stopped; outside its table,
+    /// running (a heartbeat was heard) or missing.
     pub state: String,
     /// Restarts so far.
     pub restarts: u32,
@@ -87,6 +88,24 @@ pub fn stack_prefix(explicit: Option<String>) -> Result<String, CliError> {
     }
 }
 
+/// The processes `motm status` shows, given the names in the supervisor's table: the graph's
+/// processes that run on the robot (not simulation-only) or that the table lists, in the
+/// graph's order; then the table's other processes (a hardware stand-in, say), in its order;
+/// then the supervisor.
+fn expected_processes(table: &[&str]) -> Vec<String> {
+    let mut names: Vec<String> = motm_graph::processes()
+        .filter(|t| !t.sim_only || table.contains(&t.name))
+        .map(|t| t.name.to_owned())
+        .collect();
+    for name in table {
+        if !names.iter().any(|n| n == name) {
+            names.push((*name).to_owned());
+        }
+    }
+    names.push("supervisor".into());
+    names
+}
+
 fn state_name(state: Option<SupervisedState>) -> &'static str {
     match state {
         Some(SupervisedState::Pending) => "pending",
@@ -123,12 +142,8 @@ pub fn run(args: &StatusArgs) -> Result<(), CliError> {
             ipc.prefix, args.wait_ms
         )));
     };
-    let mut names: Vec<String> = status
-        .processes()
-        .iter()
-        .map(|p| p.name().to_owned())
-        .collect();
-    names.push("supervisor".into());
+    let table_names: Vec<&str> = status.processes().iter().map(|p| p.name()).collect();
+    let names = expected_processes(&table_names);
     let mut beats = names
         .iter()
         .map(|n| Latest::<Heartbeat>::new(&bus, &services::heartbeat(n), &qos))
@@ -154,9 +169,10 @@ pub fn run(args: &StatusArgs) -> Result<(), CliError> {
             StatusRow {
                 name: name.clone(),
                 pid: row.map_or_else(|| b.map_or(0, |b| b.pid), |r| r.pid),
-                state: match row {
-                    Some(r) => state_name(r.state()).into(),
-                    None => "running".into(),
+                state: match (row, b) {
+                    (Some(r), _) => state_name(r.state()).into(),
+                    (None, Some(_)) => "running".into(),
+                    (None, None) => "missing".into(),
                 },
                 restarts: row.map_or(0, |r| r.restarts),
                 rate_hz: b
@@ -206,4 +222,27 @@ pub fn run(args: &StatusArgs) -> Result<(), CliError> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn expected_processes_are_the_graphs_with_the_tables_extras_and_the_supervisor() {
+        let robot: Vec<&str> = motm_graph::processes()
+            .filter(|t| !t.sim_only)
+            .map(|t| t.name)
+            .collect();
+        // Under systemd the supervisor's table is empty: every robot process is still expected.
+        let names = expected_processes(&[]);
+        assert_eq!(names[..robot.len()], robot[..]);
+        assert_eq!(names[robot.len()..], ["supervisor"]);
+        assert!(!names.iter().any(|n| n == "sim-world"));
+        // A simulated stack lists sim-world (in graph order) and a stand-in (after the graph's).
+        let names = expected_processes(&["sim-world", "fake-ld60", "qp-resolver"]);
+        assert_eq!(names[0], "sim-world");
+        assert_eq!(names[1..=robot.len()], robot[..]);
+        assert_eq!(names[robot.len() + 1..], ["fake-ld60", "supervisor"]);
+    }
 }

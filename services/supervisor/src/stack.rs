@@ -2,6 +2,9 @@
 //! the restart policy and the watchdog settings (`config/frankie.toml`, `config/fetch.toml`,
 //! `config/husky_ur5.toml`). Not to be confused with the robot model in `config/robots/`.
 //!
+//! The processes named are the graph's ([`motm_graph::processes`]), every one of them and in its
+//! order (upstream first); whether one is on the control path comes from the graph too.
+//!
 //! Process arguments are templates: `{config_dir}`, `{scenario}`, `{base_speed}`, `{robot}`, `{seed}`,
 //! `{rate}` (the process's own rate), `{control_rate}`, `{stack}` (this file) and
 //! `{controllers}` (the controllers file, `controllers`) are replaced when the process is
@@ -41,10 +44,6 @@ pub struct ProcessConfig {
     /// The process's own cycle rate, Hz; absent means the stack's control rate.
     #[serde(default)]
     pub rate_hz: Option<f64>,
-    /// Whether the process is on the control path: the watchdog safe-stops when its
-    /// heartbeat goes stale or it reports deadline misses.
-    #[serde(default)]
-    pub control_path: bool,
     /// Argument templates (see the module documentation for the placeholders).
     #[serde(default)]
     pub args: Vec<String>,
@@ -56,6 +55,12 @@ impl ProcessConfig {
         self.package
             .clone()
             .unwrap_or_else(|| format!("motm-{}", self.name))
+    }
+
+    /// Whether the process is on the control path (its row of [`motm_graph::GRAPH`]): the
+    /// watchdog safe-stops when its heartbeat goes stale or it reports deadline misses.
+    pub fn control_path(&self) -> bool {
+        motm_graph::task(&self.name).is_some_and(|t| t.control_path)
     }
 }
 
@@ -92,6 +97,10 @@ pub struct StackConfig {
     /// The processes, in start order (stopped in reverse order).
     #[serde(rename = "process")]
     pub processes: Vec<ProcessConfig>,
+    /// A test stack: some of the graph's processes (still in its order) or stand-ins outside
+    /// it (a heartbeat probe), instead of every process of the graph.
+    #[serde(default)]
+    pub partial: bool,
     /// The file this was read from.
     #[serde(skip)]
     pub path: PathBuf,
@@ -204,6 +213,72 @@ impl StackConfig {
                     .map_err(|message| invalid(format!("{}[{j}]", key("args")), message))?;
             }
         }
+        self.check_graph()
+    }
+
+    /// Checks that the processes are the graph's, in its order, with stand-ins before their
+    /// drivers: an unknown or missing one is an error naming the file and the process (a [`Self::partial`] stack may leave
+    /// processes out and add stand-ins).
+    fn check_graph(&self) -> Result<(), ModelError> {
+        let graph: Vec<&str> = motm_graph::processes().map(|t| t.name).collect();
+        let position = |name: &str| graph.iter().position(|g| *g == name);
+        let mut last: Option<(usize, &str)> = None;
+        for (i, process) in self.processes.iter().enumerate() {
+            let key = format!("process[{i}].name");
+            if let Some(stand_in) = motm_graph::stand_in(&process.name) {
+                if !self.processes[i + 1..]
+                    .iter()
+                    .any(|p| p.name == stand_in.serves)
+                {
+                    return Err(ModelError::invalid(
+                        &self.path,
+                        key,
+                        format!(
+                            "'{}' stands in for the hardware of '{}', which must come after it",
+                            process.name, stand_in.serves
+                        ),
+                    ));
+                }
+                continue;
+            }
+            let Some(at) = position(&process.name) else {
+                if self.partial {
+                    continue;
+                }
+                return Err(ModelError::invalid(
+                    &self.path,
+                    key,
+                    format!(
+                        "'{}' is not a process of the graph (processes: {})",
+                        process.name,
+                        graph.join(", ")
+                    ),
+                ));
+            };
+            if let Some((before, name)) = last
+                && before > at
+            {
+                return Err(ModelError::invalid(
+                    &self.path,
+                    key,
+                    format!(
+                        "'{}' must come before '{name}' (the graph's order, upstream first: {})",
+                        process.name,
+                        graph.join(", ")
+                    ),
+                ));
+            }
+            last = Some((at, process.name.as_str()));
+        }
+        if !self.partial
+            && let Some(missing) = graph.iter().find(|g| self.process(g).is_none())
+        {
+            return Err(ModelError::invalid(
+                &self.path,
+                "process",
+                format!("the graph's process '{missing}' is missing"),
+            ));
+        }
         Ok(())
     }
 
@@ -306,26 +381,55 @@ mod tests {
         Ok(config)
     }
 
+    /// The stack files of the config folder: its `*.toml` with a `[[process]]` table.
+    fn shipped_stacks() -> Vec<PathBuf> {
+        let mut stacks: Vec<PathBuf> = std::fs::read_dir(config_dir())
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+            .filter(|p| {
+                let text = std::fs::read_to_string(p).unwrap();
+                toml::from_str::<toml::Table>(&text)
+                    .unwrap()
+                    .contains_key("process")
+            })
+            .collect();
+        stacks.sort();
+        stacks
+    }
+
     #[test]
-    fn every_shipped_stack_loads_and_names_each_service_once() {
-        for robot in ["frankie", "fetch", "husky_ur5"] {
-            let path = StackConfig::resolve(&config_dir(), robot);
-            let stack = StackConfig::from_file(&path).unwrap();
-            assert_eq!(stack.robot, robot);
-            for name in [
-                "sim-world",
-                "panda-driver",
-                "ld60-driver",
-                "perception",
-                "base-planner",
-                "reacher",
-                "final-phase",
-                "qp-resolver",
-                "watchdog",
-            ] {
-                assert!(stack.process(name).is_some(), "{robot}: {name} missing");
+    fn every_shipped_stack_loads_and_names_the_graphs_processes_in_order() {
+        let stacks = shipped_stacks();
+        let names: Vec<String> = stacks
+            .iter()
+            .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+            .collect();
+        for robot in ["frankie", "fetch", "husky_ur5", "frankie_arnl"] {
+            assert!(names.iter().any(|n| n == robot), "{robot}: {names:?}");
+        }
+        let graph: Vec<&str> = motm_graph::processes().map(|t| t.name).collect();
+        for path in &stacks {
+            let stack = StackConfig::from_file(path).unwrap();
+            assert!(!stack.partial, "{}", path.display());
+            let listed: Vec<&str> = stack
+                .processes
+                .iter()
+                .map(|p| p.name.as_str())
+                .filter(|n| motm_graph::stand_in(n).is_none())
+                .collect();
+            assert_eq!(listed, graph, "{}", path.display());
+            for process in &stack.processes {
+                assert_eq!(
+                    process.control_path(),
+                    motm_graph::task(&process.name).is_some_and(|t| t.control_path),
+                    "{}: {}",
+                    path.display(),
+                    process.name
+                );
             }
-            assert!(stack.process("qp-resolver").unwrap().control_path);
+            assert!(stack.process("qp-resolver").unwrap().control_path());
+            assert!(!stack.process("sim-world").unwrap().control_path());
             // Every control service and the mission take their gains from the one file.
             let controllers = stack.controllers_file(&config_dir());
             motm_core::on_the_move::OnTheMoveConfig::load(&controllers).unwrap();
@@ -340,10 +444,78 @@ mod tests {
                 assert!(
                     args.windows(2)
                         .any(|w| w[0] == "--controllers" && w[1] == "{controllers}"),
-                    "{robot}: {name} {args:?}"
+                    "{}: {name} {args:?}",
+                    path.display()
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_stack_off_the_graph_is_an_error_naming_the_file_and_the_process() {
+        let graph: Vec<&str> = motm_graph::processes().map(|t| t.name).collect();
+        let stack = |names: &[&str], partial: bool| {
+            let mut text = format!("robot = \"frankie\"\nscenario = \"x\"\npartial = {partial}\n");
+            for name in names {
+                text.push_str(&format!("[[process]]\nname = \"{name}\"\n"));
+            }
+            parse(&text)
+        };
+        stack(&graph, false).unwrap();
+        let error = |names: &[&str]| stack(names, false).unwrap_err().to_string();
+
+        let mut unknown = graph.clone();
+        unknown.insert(2, "no-such-process");
+        let err = error(&unknown);
+        assert!(
+            err.contains("stack.toml")
+                && err.contains("process[2].name")
+                && err.contains("'no-such-process' is not a process of the graph"),
+            "{err}"
+        );
+
+        let missing: Vec<&str> = graph.iter().copied().filter(|n| *n != "reacher").collect();
+        let err = error(&missing);
+        assert!(
+            err.contains("stack.toml") && err.contains("'reacher' is missing"),
+            "{err}"
+        );
+
+        let mut swapped = graph.clone();
+        swapped.swap(0, 1);
+        let err = error(&swapped);
+        assert!(
+            err.contains("stack.toml")
+                && err.contains("process[1].name")
+                && err.contains(&format!("'{}' must come before '{}'", graph[0], graph[1])),
+            "{err}"
+        );
+
+        // A stand-in comes before the driver it serves.
+        let mut with_fake = graph.clone();
+        let driver = with_fake.iter().position(|n| *n == "ld60-driver").unwrap();
+        with_fake.insert(driver, "fake-ld60");
+        stack(&with_fake, false).unwrap();
+        with_fake.remove(driver);
+        with_fake.insert(driver + 1, "fake-ld60");
+        let err = error(&with_fake);
+        assert!(
+            err.contains(&format!("process[{}].name", driver + 1))
+                && err.contains("'fake-ld60' stands in for the hardware of 'ld60-driver'"),
+            "{err}"
+        );
+
+        // A partial (test) stack may leave processes out and add stand-ins, in graph order.
+        let partial = stack(&["heartbeat-probe", "qp-resolver"], true).unwrap();
+        assert!(partial.process("qp-resolver").unwrap().control_path());
+        assert!(!partial.process("heartbeat-probe").unwrap().control_path());
+        let err = stack(&["watchdog", "qp-resolver"], true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("'qp-resolver' must come before 'watchdog'"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -352,6 +524,7 @@ mod tests {
             r#"
             robot = "frankie"
             scenario = "exp1-dynamic"
+            partial = true
             [[process]]
             name = "sim-world"
             rate_hz = 1000.0

@@ -176,6 +176,7 @@ fn probe_stack(test: &str) -> PathBuf {
         r#"
 robot = "frankie"
 scenario = "exp1-dynamic"
+partial = true
 [restart]
 initial_backoff_ms = 50.0
 [[process]]

@@ -64,7 +64,7 @@ fn watched(args: &Args) -> Result<Watched, String> {
     let heartbeats = stack
         .processes
         .iter()
-        .filter(|p| p.control_path)
+        .filter(|p| p.control_path())
         .map(|p| p.name.clone())
         .collect();
     Ok(Watched {

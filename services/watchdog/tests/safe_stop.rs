@@ -29,7 +29,7 @@ fn safe_stop_follows_the_control_path() {
     std::fs::write(
         &stack,
         "robot = \"frankie\"\nscenario = \"exp1-dynamic\"\ncontrol_rate_hz = 200.0\n\
-         [[process]]\nname = \"qp-resolver\"\ncontrol_path = true\n",
+         partial = true\n[[process]]\nname = \"qp-resolver\"\n",
     )
     .unwrap();
     let mut watchdog = ChildGuard(

@@ -21,10 +21,27 @@ const ROLE_ENV: &str = "MOTM_BUS_TEST_ROLE";
 /// Longest wait for anything in these tests (generous: the machine is shared and noisy).
 const TIMEOUT: Duration = Duration::from_secs(20);
 
-/// Entry point of the peer processes; does nothing in a normal test run.
+/// Entry point of the peer processes. In a normal test run (no role set) it checks the role
+/// dispatch itself: a peer started with a role it does not know fails, naming the role, and
+/// leaves nothing on the bus (the other tests run the known roles).
 #[test]
 fn peer_process_entry() {
     let Ok(role) = std::env::var(ROLE_ENV) else {
+        let ipc = unique_ipc("role");
+        let out = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "peer_process_entry", "--test-threads=1"])
+            .env(ROLE_ENV, "no-such-role")
+            .env(PREFIX_ENV, &ipc.prefix)
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!out.status.success(), "{text}");
+        assert!(text.contains("unknown role no-such-role"), "{text}");
+        assert!(shared_memory_entries(&ipc).unwrap().is_empty());
         return;
     };
     match role.as_str() {

@@ -347,6 +347,34 @@ pub const PLANNING: TaskSpec = TaskSpec {
 /// The baselines' tasks, for the in-process comparisons of the paper's experiments.
 pub const BASELINES: &[TaskSpec] = &[REACTIVE, PLANNING];
 
+/// A process that stands in for a robot's hardware behind a driver backend, in simulation
+/// only. It is no task of the graph: it speaks the hardware's own protocol to its driver and
+/// bridges to sim-world over topics the graph already has.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StandIn {
+    /// Process and binary name.
+    pub name: &'static str,
+    /// The driver process it serves, which it is started before.
+    pub serves: &'static str,
+    /// The topics it reads.
+    pub inputs: &'static [TopicSpec],
+    /// The topics it publishes (in place of the driver, whose backend then does not).
+    pub outputs: &'static [TopicSpec],
+}
+
+/// The hardware stand-ins a stack may add to the graph's processes.
+pub const STAND_INS: &[StandIn] = &[StandIn {
+    name: "fake-ld60",
+    serves: "ld60-driver",
+    inputs: &[t::HW_BASE_STATE.spec()],
+    outputs: &[t::HW_BASE_COMMAND.spec()],
+}];
+
+/// The stand-in `name`.
+pub fn stand_in(name: &str) -> Option<&'static StandIn> {
+    STAND_INS.iter().find(|s| s.name == name)
+}
+
 /// Topics the supervisor publishes itself, outside any task: the hot swap's active-controller
 /// id and the process table.
 pub const SUPERVISOR_TOPICS: &[TopicSpec] = &[
@@ -426,6 +454,39 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn stand_ins_serve_a_driver_and_use_the_graphs_topics() {
+        let published = published_topics();
+        for stand_in in STAND_INS {
+            assert!(task(stand_in.name).is_none(), "{}", stand_in.name);
+            let driver = task(stand_in.serves).expect("a task of the graph");
+            assert!(driver.is_process() && !driver.sim_only, "{}", driver.name);
+            for topic in stand_in.inputs.iter().chain(stand_in.outputs) {
+                assert!(
+                    published.contains(topic),
+                    "{}: {}",
+                    stand_in.name,
+                    topic.name
+                );
+            }
+        }
+        assert_eq!(stand_in("fake-ld60").map(|s| s.serves), Some("ld60-driver"));
+    }
+
+    #[test]
+    fn every_topic_carries_the_schema_version() {
+        let prefix = format!("{}/", motm_msgs::services::PREFIX);
+        assert_eq!(prefix, format!("motm/v{}/", motm_msgs::SCHEMA_VERSION));
+        let swap = [
+            t::SUPERVISOR_SWAP_REQUEST.name(),
+            t::SUPERVISOR_SWAP_STATUS.name(),
+        ];
+        for name in published_topics().iter().map(|t| t.name).chain(swap) {
+            assert!(name.starts_with(&prefix), "{name}");
+        }
+        assert!(motm_msgs::services::heartbeat("watchdog").starts_with(&prefix));
     }
 
     #[test]

@@ -1,5 +1,7 @@
 //! iceoryx2 service names. Every name starts with `motm/v<SCHEMA_VERSION>/`, so a process built
-//! with other message types cannot attach to a service of this version.
+//! with other message types cannot attach to a service of this version. This is the one place
+//! the names are spelt; the typed topics ([`crate::topics`]) and the graph's table
+//! (`motm_graph::GRAPH`, which lists who publishes and reads each) are made of them.
 
 /// Prefix of every service name of this schema version.
 pub const PREFIX: &str = "motm/v1";
@@ -58,51 +60,8 @@ pub fn ready_event(service: &str) -> String {
     format!("{service}/ready")
 }
 
-/// Every fixed service name (heartbeats excluded), for taps and tests.
-pub const ALL: [&str; 20] = [
-    ARM_JOINT_STATE,
-    ARM_GRIPPER_STATE,
-    ARM_VELOCITY_COMMAND,
-    ARM_GRIPPER_COMMAND,
-    BASE_ODOMETRY,
-    BASE_VELOCITY_TARGET,
-    BASE_VELOCITY_COMMAND,
-    BASE_PLAN,
-    CAMERA_IMAGE,
-    PERCEPTION_TARGET,
-    CONTROL_REACH_TWIST,
-    CONTROL_FINAL_TWIST,
-    CONTROL_QP_STATUS,
-    CONTROL_ACTIVE_CONTROLLER,
-    MISSION_STATE,
-    SAFETY_SAFE_STOP,
-    HW_ARM_COMMAND,
-    HW_ARM_STATE,
-    HW_BASE_COMMAND,
-    HW_BASE_STATE,
-];
-
 /// The supervisor's process table ([`crate::SupervisorStatus`]).
 pub const SUPERVISOR_STATUS: &str = "motm/v1/supervisor/status";
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn every_service_name_carries_the_schema_version_and_is_unique() {
-        let prefix = format!("motm/v{}/", crate::SCHEMA_VERSION);
-        assert_eq!(format!("{PREFIX}/"), prefix);
-        for name in ALL {
-            assert!(name.starts_with(&prefix), "{name}");
-        }
-        assert!(heartbeat("watchdog").starts_with(&prefix));
-        let mut names = ALL.to_vec();
-        names.sort_unstable();
-        names.dedup();
-        assert_eq!(names.len(), ALL.len());
-    }
-}
 
 /// Gripper command from the arm driver to the simulated (or real) hardware ([`crate::GripperCommand`]).
 pub const HW_GRIPPER_COMMAND: &str = "motm/v1/hw/gripper_command";
@@ -114,34 +73,6 @@ pub const SIM_TRUTH: &str = "motm/v1/sim/truth";
 pub const ARM_DRIVER_STATUS: &str = "motm/v1/arm/driver_status";
 /// Status and limit counters of the base driver ([`crate::DriverStatus`]).
 pub const BASE_DRIVER_STATUS: &str = "motm/v1/base/driver_status";
-
-/// The simulated-hardware and driver-status services (besides [`ALL`]).
-pub const HARDWARE_AND_DRIVERS: [&str; 5] = [
-    HW_GRIPPER_COMMAND,
-    HW_GRIPPER_STATE,
-    SIM_TRUTH,
-    ARM_DRIVER_STATUS,
-    BASE_DRIVER_STATUS,
-];
-
-#[cfg(test)]
-mod hardware_and_driver_tests {
-    use super::*;
-
-    #[test]
-    fn hardware_and_driver_services_are_versioned_and_distinct_from_the_rest() {
-        let prefix = format!("motm/v{}/", crate::SCHEMA_VERSION);
-        let mut names: Vec<&str> = ALL.to_vec();
-        names.extend(HARDWARE_AND_DRIVERS);
-        for name in HARDWARE_AND_DRIVERS {
-            assert!(name.starts_with(&prefix), "{name}");
-        }
-        let before = names.len();
-        names.sort_unstable();
-        names.dedup();
-        assert_eq!(names.len(), before);
-    }
-}
 
 /// Hot-swap requests to the supervisor ([`crate::SwapRequest`]).
 pub const SUPERVISOR_SWAP_REQUEST: &str = "motm/v1/supervisor/swap_request";

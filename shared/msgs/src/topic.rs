@@ -118,4 +118,8 @@ pub mod topics {
     pub const BASE_DRIVER_STATUS: Topic<DriverStatus> = Topic::new(s::BASE_DRIVER_STATUS);
     /// The supervisor's process table.
     pub const SUPERVISOR_STATUS: Topic<SupervisorStatus> = Topic::new(s::SUPERVISOR_STATUS);
+    /// Hot-swap requests to the supervisor.
+    pub const SUPERVISOR_SWAP_REQUEST: Topic<SwapRequest> = Topic::new(s::SUPERVISOR_SWAP_REQUEST);
+    /// The supervisor's hot-swap reports.
+    pub const SUPERVISOR_SWAP_STATUS: Topic<SwapStatus> = Topic::new(s::SUPERVISOR_SWAP_STATUS);
 }
