@@ -352,8 +352,11 @@ fn measure_iceoryx2(
             }
             _ => {
                 let seq = image.next_seq();
+                // A frame is published at its exposure stamp or later.
+                let now = motm_bus::monotonic_now_ns();
                 image
-                    .publish_with(Stamp::Now, |m| {
+                    .publish_with(Stamp::At(now), |m| {
+                        m.image_published_ns = now;
                         m.width = CAMERA_WIDTH as u32;
                         m.height = CAMERA_HEIGHT as u32;
                         m.pixels[..8].copy_from_slice(&seq.to_le_bytes());

@@ -116,8 +116,11 @@ fn camera_peer() {
     let exit = service
         .run_periodic(|_| {
             let seq = images.next_seq();
+            // A frame is published at its exposure stamp or later.
+            let now = motm_bus::monotonic_now_ns();
             images
-                .publish_with(Stamp::Now, |image| {
+                .publish_with(Stamp::At(now), |image| {
+                    image.image_published_ns = now;
                     image.width = CAMERA_WIDTH as u32;
                     image.height = CAMERA_HEIGHT as u32;
                     for (i, p) in image.pixels.iter_mut().enumerate() {
