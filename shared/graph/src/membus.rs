@@ -10,7 +10,7 @@
 //!   future, sequence moving forward, fields); a rejected one is dropped and counted.
 
 use std::any::Any;
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use motm_msgs::{Message, Rejection, Topic};
@@ -20,6 +20,70 @@ use crate::task::{Consumed, Sink, Source, boxed_copy, consumed};
 
 /// Identifies one reader of the bus (a scheduled task).
 pub type ReaderId = usize;
+
+/// A small map searched linearly: a bus has a few dozen topics and a channel a few readers, so
+/// a scan of pointer-equal keys beats hashing on every read.
+#[derive(Debug)]
+struct SmallMap<K, V> {
+    entries: Vec<(K, V)>,
+}
+
+impl<K, V> Default for SmallMap<K, V> {
+    fn default() -> Self {
+        Self {
+            entries: Vec::new(),
+        }
+    }
+}
+
+impl<K: Copy + PartialEq, V> SmallMap<K, V> {
+    fn get(&self, key: &K) -> Option<&V> {
+        self.entries.iter().find(|(k, _)| k == key).map(|(_, v)| v)
+    }
+
+    fn get_mut(&mut self, key: &K) -> Option<&mut V> {
+        self.entries
+            .iter_mut()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v)
+    }
+
+    fn get_or_insert_with(&mut self, key: K, value: impl FnOnce() -> V) -> &mut V {
+        let i = match self.entries.iter().position(|(k, _)| *k == key) {
+            Some(i) => i,
+            None => {
+                self.entries.push((key, value()));
+                self.entries.len() - 1
+            }
+        };
+        &mut self.entries[i].1
+    }
+
+    fn insert(&mut self, key: K, value: V) {
+        match self.get_mut(&key) {
+            Some(v) => *v = value,
+            None => self.entries.push((key, value)),
+        }
+    }
+
+    fn values(&self) -> impl Iterator<Item = &V> {
+        self.entries.iter().map(|(_, v)| v)
+    }
+
+    fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+/// A topic name as a map key: equal when the strings are (pointer-equal names compare first).
+#[derive(Debug, Clone, Copy)]
+struct Name(&'static str);
+
+impl PartialEq for Name {
+    fn eq(&self, other: &Self) -> bool {
+        std::ptr::eq(self.0, other.0) || self.0 == other.0
+    }
+}
 
 /// One reader's place in a channel.
 #[derive(Debug, Clone, Copy)]
@@ -34,7 +98,7 @@ struct Channel<T> {
     samples: VecDeque<(u64, u64, Arc<T>)>,
     next_index: u64,
     next_seq: u64,
-    cursors: HashMap<ReaderId, Cursor>,
+    cursors: SmallMap<ReaderId, Cursor>,
 }
 
 impl<T> Channel<T> {
@@ -43,7 +107,7 @@ impl<T> Channel<T> {
             samples: VecDeque::new(),
             next_index: 0,
             next_seq: 0,
-            cursors: HashMap::new(),
+            cursors: SmallMap::default(),
         }
     }
 
@@ -70,8 +134,8 @@ impl<T> Channel<T> {
 #[derive(Default)]
 pub struct MemBus {
     now_ns: u64,
-    channels: HashMap<&'static str, Box<dyn AnyChannel>>,
-    delays: HashMap<(&'static str, ReaderId), u64>,
+    channels: SmallMap<Name, Box<dyn AnyChannel>>,
+    delays: SmallMap<(Name, ReaderId), u64>,
     rejected: u64,
     last_rejection: Option<Rejection>,
     recorded: Option<Vec<RawSample>>,
@@ -95,7 +159,18 @@ impl MemBus {
 
     /// Sets the delay of the edge from `topic` to `reader`, ns.
     pub fn set_delay(&mut self, topic: &'static str, reader: ReaderId, delay_ns: u64) {
-        self.delays.insert((topic, reader), delay_ns);
+        self.delays.insert((Name(topic), reader), delay_ns);
+    }
+
+    /// The delay of the edge from `topic` to `reader`, ns (0 unless set).
+    fn delay(&self, topic: &'static str, reader: ReaderId) -> u64 {
+        if self.delays.is_empty() {
+            return 0;
+        }
+        self.delays
+            .get(&(Name(topic), reader))
+            .copied()
+            .unwrap_or(0)
     }
 
     /// Samples dropped by validation so far.
@@ -110,8 +185,7 @@ impl MemBus {
 
     fn channel<T: Message>(&mut self, topic: Topic<T>) -> &mut Channel<T> {
         self.channels
-            .entry(topic.name())
-            .or_insert_with(|| Box::new(Channel::<T>::new()))
+            .get_or_insert_with(Name(topic.name()), || Box::new(Channel::<T>::new()))
             .as_any_mut()
             .downcast_mut::<Channel<T>>()
             .unwrap_or_else(|| panic!("topic {topic:?} used with two payload types"))
@@ -162,8 +236,8 @@ impl MemBus {
 
     /// Whether `reader` has an unread sample on `topic` that is visible now.
     pub fn has_new(&self, topic: &'static str, reader: ReaderId) -> bool {
-        let delay = self.delays.get(&(topic, reader)).copied().unwrap_or(0);
-        let Some(channel) = self.channels.get(topic) else {
+        let delay = self.delay(topic, reader);
+        let Some(channel) = self.channels.get(&Name(topic)) else {
             return false;
         };
         channel.has_new(reader, self.now_ns, delay)
@@ -172,14 +246,10 @@ impl MemBus {
     /// The visible samples `reader` has not read yet on `topic`, validated, oldest first.
     pub fn read<T: Message>(&mut self, topic: Topic<T>, reader: ReaderId) -> Vec<Arc<T>> {
         let now = self.now_ns;
-        let delay = self
-            .delays
-            .get(&(topic.name(), reader))
-            .copied()
-            .unwrap_or(0);
+        let delay = self.delay(topic.name(), reader);
         let channel = self.channel(topic);
         let first_unread = channel.next_index.saturating_sub(1);
-        let cursor = *channel.cursors.entry(reader).or_insert(Cursor {
+        let cursor = *channel.cursors.get_or_insert_with(reader, || Cursor {
             next: first_unread,
             last_seq: None,
         });
