@@ -134,6 +134,9 @@ fn a_dropped_connection_is_a_counted_error_and_a_safe_stop_never_a_command() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(!base.faulted());
+    // A loaded machine may delay the first odometry past the stale limit (a safe stop at
+    // start-up, by design): count only what the dropped connection adds.
+    let safe_stops_before = base.counters().safe_stops;
     robot.shutdown();
     physics.join().unwrap();
     let mut faults = Vec::new();
@@ -151,7 +154,7 @@ fn a_dropped_connection_is_a_counted_error_and_a_safe_stop_never_a_command() {
     );
     assert!(base.faulted());
     assert!(base.counters().hardware_errors > 0);
-    assert_eq!(base.counters().safe_stops, 1);
+    assert_eq!(base.counters().safe_stops, safe_stops_before + 1);
 }
 
 #[test]

@@ -26,9 +26,9 @@ use motm_bus::{
     Subscriber,
 };
 use motm_core::Robot;
-use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig, LimiterMode};
-use motm_core::velocity_driver::{DriverCounters, VelocityDriver, VelocityDriverConfig};
-use motm_msgs::{DriverMode, DriverStatus, Message, SafeStop, services};
+use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig};
+use motm_core::velocity_driver::{VelocityDriver, VelocityDriverConfig};
+use motm_msgs::{DriverStatus, Message, SafeStop, services};
 use motm_sim::Scenario;
 use motm_sim::scenario_path;
 use motm_wire::setup::resolve_config_dir;
@@ -179,26 +179,7 @@ pub trait DriverTopics {
     fn hardware_command(velocity: &[f64]) -> Self::Command;
 }
 
-/// The status message of a driver with `counters`.
-pub fn status_message(counters: &DriverCounters) -> DriverStatus {
-    let mut status = DriverStatus::zeroed();
-    status.mode = match counters.mode {
-        LimiterMode::Tracking => DriverMode::Tracking,
-        LimiterMode::Stale => DriverMode::Stale,
-        LimiterMode::SafeStop => DriverMode::SafeStop,
-    }
-    .into();
-    status.hardware_ready = counters.hardware_ready.into();
-    status.commands_received = counters.commands_received;
-    status.limit_violations = counters.limiter.limit_violations;
-    status.clamped_commands = counters.limiter.clamped_commands;
-    status.ignored_commands = counters.limiter.ignored_commands;
-    status.stale_cycles = counters.limiter.stale_steps;
-    status.safe_stop_cycles = counters.limiter.safe_stop_steps;
-    status.output_violations = counters.output_violations;
-    status.max_command_gap_ns = counters.max_command_gap_ns;
-    status
-}
+pub use motm_tasks::driver::status_message;
 
 /// Runs the loop of driver `T` at `period` until SIGTERM/SIGINT. `extra` runs once per cycle
 /// after the velocity command (e.g. the gripper), with the safe-stop flag.
@@ -280,38 +261,6 @@ pub fn exit(process: &str, result: Result<(), (u8, String)>) -> ExitCode {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use motm_core::command_limiter::LimiterCounters;
-
-    #[test]
-    fn status_message_carries_every_counter_and_validates() {
-        let counters = DriverCounters {
-            limiter: LimiterCounters {
-                limit_violations: 5,
-                clamped_commands: 3,
-                ignored_commands: 2,
-                stale_steps: 7,
-                safe_stop_steps: 11,
-            },
-            commands_received: 13,
-            output_violations: 0,
-            max_command_gap_ns: 17,
-            mode: LimiterMode::SafeStop,
-            hardware_ready: true,
-        };
-        let m = status_message(&counters);
-        assert_eq!(m.mode(), Some(DriverMode::SafeStop));
-        assert_eq!(
-            (
-                m.commands_received,
-                m.limit_violations,
-                m.stale_cycles,
-                m.safe_stop_cycles
-            ),
-            (13, 5, 7, 11)
-        );
-        assert_eq!((m.hardware_ready, m.max_command_gap_ns), (1, 17));
-        assert_eq!(m.validate(1, None), Ok(()));
-    }
 
     #[test]
     fn bad_rates_are_errors_naming_the_flag() {

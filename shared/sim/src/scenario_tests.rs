@@ -77,6 +77,7 @@ fn every_shipped_scenario_loads() {
         "platforms-fetch",
         "platforms-frankie",
         "platforms-husky_ur5",
+        "two-in-a-row",
     ];
     assert_eq!(names, expected);
 }

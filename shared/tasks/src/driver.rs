@@ -325,3 +325,41 @@ pub fn velocity_driver(
     };
     VelocityDriver::new(axes, period_s, config).map_err(|e| e.to_string())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use motm_core::command_limiter::LimiterCounters;
+    use motm_msgs::DriverMode;
+
+    #[test]
+    fn status_message_carries_every_counter_and_validates() {
+        let counters = DriverCounters {
+            limiter: LimiterCounters {
+                limit_violations: 5,
+                clamped_commands: 3,
+                ignored_commands: 2,
+                stale_steps: 7,
+                safe_stop_steps: 11,
+            },
+            commands_received: 13,
+            output_violations: 0,
+            max_command_gap_ns: 17,
+            mode: LimiterMode::SafeStop,
+            hardware_ready: true,
+        };
+        let m = status_message(&counters);
+        assert_eq!(m.mode(), Some(DriverMode::SafeStop));
+        assert_eq!(
+            (
+                m.commands_received,
+                m.limit_violations,
+                m.stale_cycles,
+                m.safe_stop_cycles
+            ),
+            (13, 5, 7, 11)
+        );
+        assert_eq!((m.hardware_ready, m.max_command_gap_ns), (1, 17));
+        assert_eq!(m.validate(1, None), Ok(()));
+    }
+}

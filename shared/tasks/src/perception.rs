@@ -126,7 +126,10 @@ impl Task for PerceptionTask {
                 let mut m = convert::target_message(&r);
                 // The frame this estimate was computed from: the start of its latency.
                 m.image_published_ns = image.image_published_ns;
-                convert::stamped(m, now_ns)
+                // The runtime reads its clock before the inputs: a frame that arrived in
+                // between was published after `now_ns`, and an estimate is never stamped
+                // before the frame it came from.
+                convert::stamped(m, now_ns.max(image.image_published_ns))
             }),
         }
     }

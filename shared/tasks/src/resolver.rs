@@ -143,7 +143,11 @@ impl Task for ResolverTask {
                 convert::base_command(&out.resolved.base),
                 now_ns,
             )),
-            status: Some(convert::stamped(status, now_ns)),
+            // Never stamped before the frame behind its target (see perception's stamp).
+            status: Some(convert::stamped(
+                status,
+                now_ns.max(status.image_published_ns),
+            )),
         }
     }
 }
