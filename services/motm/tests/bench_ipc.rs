@@ -16,7 +16,8 @@ fn bench_ipc_reports_every_case_with_ordered_statistics() {
         String::from_utf8_lossy(&out.stderr)
     );
     let report: Value = serde_json::from_slice(&out.stdout).unwrap();
-    let image_bytes = 24 + 8 + 320 * 240 * 3;
+    // Header, width and height, the frame's publication time, then the pixels.
+    let image_bytes = 24 + 8 + 8 + 320 * 240 * 3;
     for (case, bytes) in [
         ("iceoryx2_64B", 64),
         ("uds_64B", 64),
