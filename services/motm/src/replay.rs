@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use motm_graph::replay::RawSample;
-use motm_graph::{Consumed, CycleRecord};
+use motm_graph::{Consumed, CycleRecord, TopicSpec};
 use motm_sim::experiment::TrialLog;
 use motm_sim::replay::replay_log;
 use serde::{Deserialize, Serialize};
@@ -55,19 +55,9 @@ fn refs(list: &[Consumed]) -> Vec<(String, u64, u64)> {
         .collect()
 }
 
-/// The graph's name for `topic` (every logged topic is one of the graph's).
-fn static_topic(topic: &str) -> Option<&'static str> {
-    motm_graph::published_topics()
-        .into_iter()
-        .find(|t| t.name == topic)
-        .map(|t| t.name)
-}
-
-fn type_of(topic: &str) -> &'static str {
-    motm_graph::published_topics()
-        .into_iter()
-        .find(|t| t.name == topic)
-        .map_or("unknown", |t| t.type_name)
+/// The graph's topic named `topic`, from `topics` (every logged topic is one of the graph's).
+fn graph_topic(topics: &[TopicSpec], topic: &str) -> Option<TopicSpec> {
+    topics.iter().find(|t| t.name == topic).copied()
 }
 
 /// Writes `log` of the trial `info` to `path`.
@@ -75,6 +65,7 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
     let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let file = std::fs::File::create(path).map_err(|e| fail(&e))?;
     let mut writer = mcap::Writer::new(std::io::BufWriter::new(file)).map_err(|e| fail(&e))?;
+    let topics = motm_graph::published_topics();
     let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
     let no_metadata = BTreeMap::new();
     let json_channel = |writer: &mut mcap::Writer<_>, topic: &str| -> Result<u16, String> {
@@ -98,8 +89,10 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
         let channel = match channels.get(sample.topic) {
             Some(id) => *id,
             None => {
+                let type_name =
+                    graph_topic(&topics, sample.topic).map_or("unknown", |t| t.type_name);
                 let schema = writer
-                    .add_schema(type_of(sample.topic), "", &[])
+                    .add_schema(type_name, "", &[])
                     .map_err(|e| fail(&e))?;
                 let id = writer
                     .add_channel(schema, sample.topic, RAW_ENCODING, &no_metadata)
@@ -136,6 +129,8 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
 pub fn read_log(path: &Path) -> Result<(TrialInfo, TrialLog), String> {
     let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let bytes = std::fs::read(path).map_err(|e| fail(&e))?;
+    let topics = motm_graph::published_topics();
+    let static_topic = |topic: &str| graph_topic(&topics, topic).map(|t| t.name);
     let mut info = None;
     let mut log = TrialLog::default();
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| fail(&e))?;

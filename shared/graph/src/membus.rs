@@ -206,8 +206,8 @@ impl MemBus {
     }
 
     /// Publishes `sample` now: the bus assigns the sequence number and stamps a zero stamp
-    /// with the current time. Returns the sequence number.
-    pub fn publish<T: Message>(&mut self, topic: Topic<T>, sample: Arc<T>) -> u64 {
+    /// with the current time. Returns the sample as published (topic, sequence number, stamp).
+    pub fn publish<T: Message>(&mut self, topic: Topic<T>, sample: Arc<T>) -> Consumed {
         let now = self.now_ns;
         let channel = self.channel(topic);
         let mut sample = sample;
@@ -228,10 +228,11 @@ impl MemBus {
                 bytes: raw_bytes(sample.as_ref()),
             });
         }
+        let published = consumed(topic, sample.as_ref());
         let channel = self.channel(topic);
         channel.samples.push_back((now, index, sample));
         channel.trim();
-        seq
+        published
     }
 
     /// Whether `reader` has an unread sample on `topic` that is visible now.
@@ -357,12 +358,8 @@ impl Sink for MemPort<'_> {
     }
 
     fn publish_shared<T: Message>(&mut self, topic: Topic<T>, message: Arc<T>) {
-        let stamp = message.header().stamp_ns;
-        let seq = self.bus.publish(topic, message);
-        let mut record = consumed(topic, &T::zeroed());
-        record.seq = seq;
-        record.stamp_ns = if stamp == 0 { self.bus.now_ns() } else { stamp };
-        self.produced.push(record);
+        let published = self.bus.publish(topic, message);
+        self.produced.push(published);
     }
 }
 

@@ -11,7 +11,9 @@ use std::sync::Arc;
 
 use motm_core::BaseVelocity;
 use motm_graph::{Task, boxed_zeroed, ports};
-use motm_msgs::{self as msgs, Message, topics};
+use motm_msgs::{self as msgs, topics};
+
+use motm_tasks::convert::stamped;
 
 use crate::messages;
 use crate::sim_world::{HardwareInput, SimWorld, TrialStatus};
@@ -139,10 +141,6 @@ impl Task for SimWorldTask {
         }
         // Steps beyond the catch-up limit are dropped: the simulation falls behind.
         self.steps_done += due;
-        let stamped = |mut m: msgs::JointState| {
-            m.header_mut().stamp_ns = now_ns;
-            m
-        };
         let sensors = self.sim.sensors();
         let image = frame.map(|frame| {
             // The frame's age in simulated time, mapped onto the monotonic clock.
@@ -158,19 +156,13 @@ impl Task for SimWorldTask {
         let truth = (self.cycle.is_multiple_of(self.truth_every) || status != self.last_status)
             .then(|| {
                 self.last_status = status;
-                let mut m = messages::truth(&self.sim, self.catch_up_cycles);
-                m.header.stamp_ns = now_ns;
-                m
+                stamped(messages::truth(&self.sim, self.catch_up_cycles), now_ns)
             });
         self.cycle += 1;
-        let mut base = messages::odometry(sensors);
-        base.header.stamp_ns = now_ns;
-        let mut gripper = messages::gripper_state(self.sim.truth());
-        gripper.header.stamp_ns = now_ns;
         SimWorldOutputs {
-            arm: Some(stamped(messages::joint_state(sensors))),
-            base: Some(base),
-            gripper: Some(gripper),
+            arm: Some(stamped(messages::joint_state(sensors), now_ns)),
+            base: Some(stamped(messages::odometry(sensors), now_ns)),
+            gripper: Some(stamped(messages::gripper_state(self.sim.truth()), now_ns)),
             image,
             truth,
         }
