@@ -56,9 +56,11 @@ if [[ ! -f "$stack_file" ]]; then
   echo "install.sh: no stack config $stack_file (--stack)" >&2
   exit 2
 fi
-# Every process of the stack config plus the supervisor.
+# Every process of the stack config plus the supervisor; the logger has a unit too (started on
+# its own: `systemctl start motm@logger.service`), and `motm` is the command line (`motm status`).
 processes=(supervisor $(sed -n 's/^name = "\([a-z0-9-]*\)".*/\1/p' "$stack_file"))
-for p in "${processes[@]}"; do
+binaries=("${processes[@]}" logger motm)
+for p in "${binaries[@]}"; do
   if [[ ! -x "$bin_src/$p" ]]; then
     echo "install.sh: $bin_src/$p missing: build with 'cargo build --release --workspace' (or give --bin-dir)" >&2
     exit 2
@@ -71,7 +73,7 @@ if [[ $make_user == 1 ]] && ! id "$service_user" >/dev/null 2>&1; then
 fi
 
 install -d "$prefix/bin" "$confdir/env" "$unitdir"
-for p in "${processes[@]}"; do
+for p in "${binaries[@]}"; do
   if [[ $link == 1 ]]; then
     ln -sf "$bin_src/$p" "$prefix/bin/$p"
   else
@@ -91,6 +93,11 @@ install -m 0644 "$repo/deploy/README.md" "$confdir/README.md"
 # Under systemd the units run the processes; the supervisor runs the mission only.
 printf 'MOTM_ARGS="--stack %s --config-dir %s/config --no-spawn"\n' "$stack" "$confdir" \
   > "$confdir/env/supervisor.env"
+# The logger records every topic to an MCAP file in its state directory (/var/lib/motm, see
+# motm@logger.service.d/); a restart starts the file again.
+robot=$(sed -n 's/^robot = "\([a-z0-9_]*\)".*/\1/p' "$stack_file")
+printf 'MOTM_ARGS="--out /var/lib/motm/stack.mcap --config-dir %s/config --robot %s"\n' "$confdir" "$robot" \
+  > "$confdir/env/logger.env"
 
 # Units: the template, its per-process drop-ins, the target; with the paths filled in.
 subst() {

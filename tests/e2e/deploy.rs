@@ -115,6 +115,45 @@ fn installed_units_pass_systemd_analyze_verify() {
     }
     let supervisor = std::fs::read_to_string(root.join("etc/env/supervisor.env")).unwrap();
     assert!(supervisor.contains("--no-spawn"), "{supervisor}");
+    // The command line and the logger are installed, and the logger has its unit's arguments.
+    for binary in ["motm", "logger", "supervisor", "panda-driver"] {
+        assert!(
+            root.join("opt/bin").join(binary).exists(),
+            "{binary} not installed"
+        );
+    }
+    assert!(instances.iter().any(|i| i == "logger"), "{instances:?}");
+    // The deployed stack's prefix is the one `motm status` looks at without flags.
+    let prefix = format!(
+        "Environment={}={}",
+        motm_bus::PREFIX_ENV,
+        motm_bus::DEPLOYED_PREFIX
+    );
+    assert!(template.contains(&prefix), "motm@.service lacks {prefix}");
+    // A drop-in that pins a process resets the template's CPUAffinity first (systemd merges
+    // repeated assignments).
+    for entry in std::fs::read_dir(&units).unwrap() {
+        let dir = entry.unwrap().path();
+        let Ok(confs) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for conf in confs {
+            let text = std::fs::read_to_string(conf.unwrap().path()).unwrap();
+            let affinity: Vec<&str> = text
+                .lines()
+                .filter(|l| l.starts_with("CPUAffinity="))
+                .collect();
+            if !affinity.is_empty() {
+                assert_eq!(
+                    affinity[0],
+                    "CPUAffinity=",
+                    "{}: {affinity:?}",
+                    dir.display()
+                );
+                assert_eq!(affinity.len(), 2, "{}: {affinity:?}", dir.display());
+            }
+        }
+    }
     for instance in &instances {
         let (ok, output) = verify(&units, &format!("motm@{instance}.service"));
         assert!(ok && output.trim().is_empty(), "motm@{instance}: {output}");

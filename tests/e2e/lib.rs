@@ -11,7 +11,7 @@ pub fn workspace_root() -> PathBuf {
 
 /// The packages of the stack's binaries: `motm run` only builds missing ones, so the tests
 /// build them all first to never run a stale binary.
-pub const STACK_PACKAGES: [&str; 12] = [
+pub const STACK_PACKAGES: [&str; 14] = [
     "motm",
     "motm-supervisor",
     "motm-sim-world",
@@ -24,6 +24,8 @@ pub const STACK_PACKAGES: [&str; 12] = [
     "motm-qp-resolver",
     "motm-watchdog",
     "motm-logger",
+    "motm-fake-panda",
+    "motm-fake-ld60",
 ];
 
 /// Every process of a Frankie run (the names of their heartbeats): the graph's processes, in
@@ -76,6 +78,17 @@ pub fn motm(args: &[&str], prefix: &str) -> Output {
         .expect("cargo run -p motm")
 }
 
+/// Runs `motm <args>` with prefix `prefix` (see [`motm_command`]) and parses its one JSON
+/// report; returns the report, whether the exit status was success, and stderr.
+pub fn motm_json(args: &[&str], prefix: &str) -> (serde_json::Value, bool, String) {
+    let out = motm(args, prefix);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report: serde_json::Value = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("no JSON report ({e}); stdout {stdout}; stderr {stderr}"));
+    (report, out.status.success(), stderr)
+}
+
 /// Held by each test that runs a stack while it runs, so that two stacks of one test binary
 /// never share the machine's few cores (they would measure the load). A test that failed
 /// while holding it does not block the others.
@@ -84,6 +97,29 @@ pub fn one_stack_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     ONE_STACK
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Checks that a `motm run` with iceoryx2 prefix `prefix` and JSON `report` left nothing
+/// behind: every pid of its processes is gone (or a zombie of an unrelated reaper), no process
+/// mentions the prefix, and no shared memory of the prefix is left.
+pub fn assert_nothing_left(report: &serde_json::Value, prefix: &str) {
+    for p in report["processes"].as_array().expect("processes") {
+        let pid = p["pid"].as_u64().unwrap();
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+        assert!(
+            stat.is_empty() || stat.contains(") Z "),
+            "pid {pid} ({}) survived",
+            p["name"]
+        );
+    }
+    assert!(processes_mentioning(prefix).is_empty());
+    let ipc = motm_bus::IpcConfig {
+        prefix: prefix.to_owned(),
+    };
+    assert_eq!(
+        motm_bus::shared_memory_entries(&ipc).unwrap(),
+        Vec::<PathBuf>::new()
+    );
 }
 
 /// Pids of live (non-zombie) processes whose command line mentions `needle`.

@@ -1,10 +1,10 @@
 //! `motm run --json` on Frankie exp1-dynamic with the real processes: the pick and place of a
-//! moving cube on-the-move succeeds as the in-process trial does (task time within 5 %), no
-//! driver command exceeds a limit, and the run leaves no process and no iceoryx2 resource
-//! behind.
+//! moving cube on-the-move succeeds, no driver command exceeds a limit, and the run leaves no
+//! process and no iceoryx2 resource behind. (That it does so as the in-process trial does,
+//! with the task time within 3 %, is `equivalence.rs`.)
 
 use motm_bus::IpcConfig;
-use motm_e2e::{motm, processes_mentioning, stack_processes};
+use motm_e2e::{assert_nothing_left, motm, motm_json, stack_processes};
 
 /// Runs `motm run --json <extra>` with a fresh prefix; returns the report, whether the exit
 /// status was success, and stderr. Checks on the way what every run must satisfy, success or
@@ -18,11 +18,7 @@ fn run_and_check(extra: &[&str]) -> (serde_json::Value, bool, String) {
     );
     let mut args = vec!["run", "--json"];
     args.extend_from_slice(extra);
-    let out = motm(&args, &prefix);
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let report: serde_json::Value = serde_json::from_str(stdout.trim())
-        .unwrap_or_else(|e| panic!("no JSON report ({e}); stdout {stdout}; stderr {stderr}"));
+    let (report, success, stderr) = motm_json(&args, &prefix);
     assert_eq!(report["limit_violations"], 0, "{report}");
     assert_eq!(report["output_violations"], 0, "{report}");
     assert_eq!(report["stale_shm_entries"], 0, "{report}");
@@ -43,53 +39,16 @@ fn run_and_check(extra: &[&str]) -> (serde_json::Value, bool, String) {
         assert!(p["pid"].as_u64().unwrap() > 0, "{report}");
         assert_eq!(p["restarts"], 0, "{name} restarted: {report}\n{stderr}");
     }
-    // No orphans: every pid of the run is gone (or a zombie of an unrelated reaper).
-    for p in processes {
-        let pid = p["pid"].as_u64().unwrap();
-        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-        assert!(
-            stat.is_empty() || stat.contains(") Z "),
-            "pid {pid} ({}) survived",
-            p["name"]
-        );
-    }
-    assert!(processes_mentioning(&prefix).is_empty());
-    let ipc = IpcConfig { prefix };
-    assert_eq!(
-        motm_bus::shared_memory_entries(&ipc).unwrap(),
-        Vec::<std::path::PathBuf>::new()
-    );
-    (report, out.status.success(), stderr)
+    assert_nothing_left(&report, &prefix);
+    (report, success, stderr)
 }
 
 #[test]
-fn motm_run_exp1_dynamic_succeeds_like_the_in_process_trial() {
+fn motm_run_exp1_dynamic_succeeds() {
     let (report, exit_ok, stderr) = run_and_check(&[]);
     assert_eq!(report["success"], true, "{report}\n{stderr}");
     assert!(exit_ok, "{stderr}");
     assert!(report["failure"].is_null(), "{report}");
-    // Equivalence: the in-process trial of the same scenario and seed succeeds too, and the
-    // task times agree within 5 %.
-    let trial = motm(
-        &[
-            "trial",
-            "--scenario",
-            "exp1-dynamic",
-            "--seed",
-            "1",
-            "--json",
-        ],
-        &format!("motme2etrial{}_", std::process::id()),
-    );
-    let trial: serde_json::Value =
-        serde_json::from_slice(&trial.stdout).expect("motm trial --json prints JSON");
-    assert_eq!(trial["success"], true, "{trial}");
-    let multi = report["task_time_s"].as_f64().unwrap();
-    let single = trial["task_time_s"].as_f64().unwrap();
-    assert!(
-        (multi - single).abs() <= 0.05 * single,
-        "task time {multi} s multi-process vs {single} s in-process"
-    );
 }
 
 #[test]
@@ -138,4 +97,30 @@ fn motm_run_names_missing_service_binaries_and_exits_1() {
     let ipc = IpcConfig { prefix };
     assert!(motm_bus::shared_memory_entries(&ipc).unwrap().is_empty());
     let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn bad_flags_are_blamed_on_the_flag_with_exit_code_2() {
+    let prefix = format!("motme2ebadflags{}_", std::process::id());
+    for (args, expected) in [
+        (
+            &["trial", "--scenario", "exp1-dynamic", "--base-speed", "50"][..],
+            "--base-speed 50: must be in (0, 2] m/s",
+        ),
+        // A negative number is a value, not a flag (no `=` needed).
+        (
+            &["trial", "--scenario", "exp1-dynamic", "--base-speed", "-1"][..],
+            "--base-speed -1: must be in (0, 2] m/s",
+        ),
+        (
+            &["run", "--config", "nosuch.toml"][..],
+            "--config nosuch.toml: nosuch.toml: cannot read",
+        ),
+    ] {
+        let out = motm(args, &prefix);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+        assert!(!stderr.contains(".toml.toml"), "{args:?}: {stderr}");
+    }
 }

@@ -65,7 +65,8 @@ pub struct FakeConfig {
     pub limits: RobotLimits,
     /// A drive holds this long, then the robot stops (2 s).
     pub drive_timeout: Duration,
-    /// `updateNumbers` broadcast period (100 ms: 10 Hz).
+    /// `updateNumbers` period of the robot's own cycle, the fastest it sends (100 ms: 10 Hz);
+    /// a client's REQUEST interval, when longer, sets that client's rate.
     pub update_period: Duration,
     /// Stop sending `updateNumbers` this long after the start (stale-odometry test).
     pub stop_updates_after: Option<Duration>,
@@ -456,6 +457,7 @@ fn serve_arnl(mut stream: TcpStream, shared: &Shared) -> io::Result<()> {
     let mut connected = false;
     let mut subscribed = false;
     let mut next_update = Instant::now();
+    let mut period = c.update_period;
     let numbers = (
         data_number("updateNumbers").expect("registered"),
         data_number("ratioDrive").expect("registered"),
@@ -532,13 +534,21 @@ fn serve_arnl(mut stream: TcpStream, shared: &Shared) -> io::Result<()> {
                     return Ok(());
                 }
                 client::REQUEST | client::REQUESTSTOP => {
-                    let Ok(number) = PayloadReader::new(&p.payload).u16("cmd") else {
+                    let mut reader = PayloadReader::new(&p.payload);
+                    let Ok(number) = reader.u16("cmd") else {
                         shared.lock().counters.bad_packets += 1;
                         return Ok(());
                     };
                     if number == numbers.0 {
                         subscribed = p.command == client::REQUEST;
                         next_update = now;
+                        // The client's interval, never faster than the robot's own cycle.
+                        period = match reader.i32("intervalMs") {
+                            Ok(ms) if ms > 0 && p.command == client::REQUEST => c
+                                .update_period
+                                .max(Duration::from_millis(ms.unsigned_abs().into())),
+                            _ => c.update_period,
+                        };
                     }
                 }
                 n if n == numbers.1 => match RatioDrive::decode(&p.payload) {
@@ -556,9 +566,9 @@ fn serve_arnl(mut stream: TcpStream, shared: &Shared) -> io::Result<()> {
         }
         let now = Instant::now();
         if subscribed && now >= next_update {
-            next_update += c.update_period;
+            next_update += period;
             if next_update < now {
-                next_update = now + c.update_period;
+                next_update = now + period;
             }
             if shared.updates_on(now) {
                 let odometry = shared.lock().odometry;

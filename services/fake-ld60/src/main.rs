@@ -2,7 +2,9 @@
 //! simulator's: each cycle it publishes the velocity its last `ratioDrive` asks for on
 //! sim-world's `HW_BASE_COMMAND` and takes sim-world's `HW_BASE_STATE` as the robot's
 //! odometry. `--physics kinematic` runs without sim-world (a unicycle within the robot's
-//! acceleration limits). On exit it prints what it counted.
+//! acceleration limits). On exit it prints what it counted; with `$MOTM_FAKE_REPORT_DIR` set
+//! (by `motm run --hardware fake`) it also writes its counts to `fake-ld60-<pid>.json` there,
+//! every second and on exit.
 
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
@@ -12,10 +14,10 @@ use std::time::Duration;
 use clap::Parser;
 use motm_bus::{Bus, Flow, Latest, LoopConfig, Publisher, Qos, ServiceLoop};
 use motm_core::Robot;
-use motm_fake_ld60::{FakeConfig, FakeLd60, RobotLimits, spawn_kinematic};
+use motm_core::resolve_config_dir;
+use motm_fake_ld60::{FakeConfig, FakeCounters, FakeLd60, RobotLimits, spawn_kinematic};
 use motm_msgs::{BaseOdometry, BaseVelocityCommand, Message, services};
 use motm_omron::{DriveLimits, Odometry};
-use motm_wire::setup::resolve_config_dir;
 
 /// Where the robot's motion comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -57,7 +59,8 @@ struct Cli {
     /// The robot stops this long after the last ratioDrive, s.
     #[arg(long, default_value_t = 2.0)]
     drive_timeout: f64,
-    /// updateNumbers broadcast rate, Hz.
+    /// The robot's updateNumbers rate, Hz: the fastest it sends (a client's request interval,
+    /// when longer, sets that client's rate).
     #[arg(long, default_value_t = 10.0)]
     update_rate: f64,
     /// Stop sending updateNumbers this many seconds after the start (stale-odometry test).
@@ -126,10 +129,36 @@ fn odometry(m: &BaseOdometry) -> Odometry {
     }
 }
 
+/// Writes the counters to `$MOTM_FAKE_REPORT_DIR/fake-ld60-<pid>.json` when that is set
+/// (`motm run --hardware fake` sums the violations of every instance).
+fn write_run_report(c: &FakeCounters) {
+    let Some(dir) = std::env::var_os(motm_graph::STAND_IN_REPORT_DIR_ENV) else {
+        return;
+    };
+    let path = PathBuf::from(dir).join(format!("fake-ld60-{}.json", std::process::id()));
+    let json = format!(
+        "{{\"violations_total\":{},\"speed_violations\":{},\"accel_violations\":{},\"clients\":{},\"ratio_drives\":{},\"stops\":{},\"drive_timeouts\":{},\"bad_packets\":{},\"unknown_commands\":{},\"updates_sent\":{}}}",
+        c.speed_violations + c.accel_violations,
+        c.speed_violations,
+        c.accel_violations,
+        c.clients,
+        c.ratio_drives,
+        c.stops,
+        c.drive_timeouts,
+        c.bad_packets,
+        c.unknown_commands,
+        c.updates_sent
+    );
+    let tmp = path.with_extension("tmp");
+    if let Err(e) = std::fs::write(&tmp, json).and_then(|()| std::fs::rename(&tmp, &path)) {
+        motm_bus::say!("fake-ld60: {}: {e}", path.display());
+    }
+}
+
 fn run(cli: &Cli) -> Result<(), (u8, String)> {
     let config = config(cli).map_err(|e| (2, e))?;
     let fake = FakeLd60::start(config).map_err(|e| (1, format!("listen: {e}")))?;
-    eprintln!(
+    motm_bus::say!(
         "fake-ld60: ArNetworking on {}, ARCL on {:?}",
         fake.arnl_addr(),
         fake.arcl_addr()
@@ -152,8 +181,12 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
     )
     .map_err(failed)?;
     let mut origin = None;
+    let report_every = (cli.rate.round() as u64).max(1);
     service
         .run_periodic(|cycle| {
+            if cycle.cycle % report_every == 0 {
+                write_run_report(&fake.counters());
+            }
             let t = cycle.now_ns - *origin.get_or_insert(cycle.now_ns);
             let t = t as f64 * 1e-9;
             if let Some(at) = cli.estop_at {
@@ -166,7 +199,7 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
                 m.v = v;
                 m.omega = omega;
                 if let Err(e) = command.publish(m) {
-                    eprintln!("fake-ld60: {e}");
+                    motm_bus::say!("fake-ld60: {e}");
                 }
                 if state.update().unwrap_or(false)
                     && let Some(s) = state.get()
@@ -177,7 +210,8 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
             Flow::Continue
         })
         .map_err(failed)?;
-    eprintln!("fake-ld60: {:?}", fake.counters());
+    motm_bus::say!("fake-ld60: {:?}", fake.counters());
+    write_run_report(&fake.counters());
     fake.shutdown();
     if let Some(k) = kinematic {
         let _ = k.join();
@@ -190,7 +224,7 @@ fn main() -> ExitCode {
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err((code, e)) => {
-            eprintln!("fake-ld60: {e}");
+            motm_bus::say!("fake-ld60: {e}");
             ExitCode::from(code)
         }
     }

@@ -13,7 +13,9 @@
 //!
 //! Report: on SIGTERM/SIGINT (or after `--duration`) one status line goes to stderr (robot
 //! time, states, commands, late and missed commands, reflexes, limit violations by kind) and,
-//! with `--report FILE`, the same counters as a JSON object. Exit code 0, or 3 when any
+//! with `--report FILE`, the same counters as a JSON object. With `$MOTM_FAKE_REPORT_DIR` set
+//! (by `motm run --hardware fake`) the JSON also goes to `fake-panda-<pid>.json` there, every
+//! second and on exit. Exit code 0, or 3 when any
 //! command broke a limit.
 
 use std::net::IpAddr;
@@ -83,6 +85,14 @@ struct Cli {
     /// Stop after this many seconds (default: run until SIGTERM/SIGINT).
     #[arg(long)]
     duration: Option<f64>,
+    /// Scheduling niceness to run at (-20 to 19; below 0 needs CAP_SYS_NICE), as a robot's
+    /// controller has the CPU to itself.
+    #[arg(long, allow_negative_numbers = true)]
+    nice: Option<i32>,
+    /// Run under SCHED_FIFO at this priority (1 to 99; needs CAP_SYS_NICE): the robot's
+    /// controller keeps its 1 ms clock whatever else the machine runs.
+    #[arg(long)]
+    fifo: Option<i32>,
     /// Write the counters as JSON to this file on exit.
     #[arg(long)]
     report: Option<PathBuf>,
@@ -101,7 +111,7 @@ impl ArmPhysics for SimArm {
         m.joint_count = 7;
         m.velocity = *dq_c;
         if let Err(e) = self.command.publish(m) {
-            eprintln!("fake-panda: {e}");
+            motm_bus::say!("fake-panda: {e}");
         }
         if self.state.update().unwrap_or(false)
             && let Some(s) = self.state.get()
@@ -143,7 +153,7 @@ impl HandPhysics for SimHand {
         }
         .into();
         if let Err(e) = self.command.publish(m) {
-            eprintln!("fake-panda: {e}");
+            motm_bus::say!("fake-panda: {e}");
         }
         self.action = Some(action);
         self.steady = 0;
@@ -190,6 +200,7 @@ fn report(robot: &FakeRobot, hand: &FakeHand) -> serde_json::Value {
     let v = &c.violations;
     let h = hand.counters();
     serde_json::json!({
+        "violations_total": v.commands,
         "robot_time_ms": robot.time_ms(),
         "states_sent": c.states_sent,
         "commands": c.commands,
@@ -223,7 +234,35 @@ fn report(robot: &FakeRobot, hand: &FakeHand) -> serde_json::Value {
     })
 }
 
+/// Writes `report` to `$MOTM_FAKE_REPORT_DIR/fake-panda-<pid>.json` when that is set (`motm
+/// run --hardware fake` sums the violations of every instance).
+fn write_run_report(report: &serde_json::Value) {
+    if let Some(dir) = std::env::var_os(motm_graph::STAND_IN_REPORT_DIR_ENV) {
+        let path = PathBuf::from(dir).join(format!("fake-panda-{}.json", std::process::id()));
+        let tmp = path.with_extension("tmp");
+        let written =
+            std::fs::write(&tmp, report.to_string()).and_then(|()| std::fs::rename(&tmp, &path));
+        if let Err(e) = written {
+            motm_bus::say!("fake-panda: {}: {e}", path.display());
+        }
+    }
+}
+
+/// Runs `work`, one part of a robot cycle, and reports it when it takes over 20 ms: the
+/// robot's 1 ms clock must not stall.
+fn timed<R>(part: &str, work: impl FnOnce() -> R) -> R {
+    const SLOW: std::time::Duration = std::time::Duration::from_millis(20);
+    let since = std::time::Instant::now();
+    let result = work();
+    let took = since.elapsed();
+    if took > SLOW {
+        motm_bus::say!("fake-panda: {part} took {:.1} ms", took.as_secs_f64() * 1e3);
+    }
+    result
+}
+
 fn run(cli: &Cli) -> Result<bool, String> {
+    motm_driver::apply_priority("fake-panda", cli.nice, cli.fifo)?;
     let config = FakeRobotConfig {
         reflex_after: cli.reflex_after,
         drop: cli.drop_at_ms.map(|at_ms| DropPlan {
@@ -270,7 +309,7 @@ fn run(cli: &Cli) -> Result<bool, String> {
             )
         }
     };
-    eprintln!(
+    motm_bus::say!(
         "fake-panda: FCI on {}:{}, hand on {}:{}, physics {:?}",
         cli.ip,
         robot.port(),
@@ -281,16 +320,20 @@ fn run(cli: &Cli) -> Result<bool, String> {
     let cycles = cli.duration.map(|d| (d * 1000.0).round() as u64);
     let mut refresh = 0u32;
     run_every_ms(|| {
-        robot.cycle(arm.as_mut());
-        hand.cycle(fingers.as_mut());
+        timed("the robot cycle", || robot.cycle(arm.as_mut()));
+        timed("the hand cycle", || hand.cycle(fingers.as_mut()));
         refresh += 1;
         if refresh.is_multiple_of(100) {
-            bus.update_connections();
+            timed("update_connections", || bus.update_connections());
         }
-        !(iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
+        if refresh.is_multiple_of(1000) {
+            timed("the report", || write_run_report(&report(&robot, &hand)));
+        }
+        !(motm_bus::termination::termination_requested()
             || cycles.is_some_and(|n| robot.counters().cycles >= n))
     });
-    eprintln!("fake-panda: {}", robot.summary());
+    motm_bus::say!("fake-panda: {}", robot.summary());
+    write_run_report(&report(&robot, &hand));
     if let Some(path) = &cli.report {
         let json = serde_json::to_string_pretty(&report(&robot, &hand)).expect("JSON");
         std::fs::write(path, json + "\n").map_err(|e| format!("{}: {e}", path.display()))?;
@@ -304,7 +347,7 @@ fn main() -> ExitCode {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(EXIT_VIOLATIONS),
         Err(e) => {
-            eprintln!("fake-panda: {e}");
+            motm_bus::say!("fake-panda: {e}");
             ExitCode::from(EXIT_BAD_INPUT)
         }
     }

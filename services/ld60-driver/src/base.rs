@@ -1,24 +1,27 @@
-//! The loop of a real base: commands through the same [`VelocityDriver`] limits as the sim
-//! backend, odometry from the hardware, and a safe stop when the hardware is not fit to
-//! drive.
+//! The loop of a real base: the same base driver task as the sim backend ([`BaseDriverTask`]:
+//! the limits, staleness and safe-stop), odometry from the hardware, and a safe stop when the
+//! hardware is not fit to drive.
 //!
 //! Each cycle [`BaseLoop::cycle`] reads what the hardware sent. The base is *faulted* when its
 //! odometry is older than the stale limit (or never came), when reading it failed (a bad
 //! packet, a dropped connection: counted, never turned into a command) or when the hardware
 //! reports a fault (e-stop, another control mode). On entering a fault the loop sends the
 //! hardware's safe stop (zero velocity, then its stop command) and then zero every cycle, while
-//! the driver ramps its own output to zero under safe-stop. It leaves the fault only when the
+//! the task's hardware hold ramps the driver's own output to zero. It leaves the fault only when the
 //! hardware is fit again and the driver's output has reached zero, so driving resumes from
 //! rest within the acceleration limits.
 
 use std::time::Duration;
 
-use motm_bus::{
-    Bus, BusError, Flow, Latest, LoopConfig, LoopExit, Publisher, Qos, ServiceLoop, Stamp,
-    Subscriber,
-};
+use motm_bus::{Bus, BusError, Flow, LoopExit, ServiceLoop};
 use motm_core::velocity_driver::VelocityDriver;
-use motm_msgs::{BaseOdometry, BaseVelocityCommand, DriverStatus, Message, SafeStop, services};
+use motm_driver::hardware::{StackPorts, from_hardware};
+use motm_driver::status_message;
+use motm_graph::{LD60_DRIVER, Task};
+use motm_msgs::{
+    BaseOdometry, BaseVelocityCommand, DriverStatus, Message, SafeStop, SafeStopReason,
+};
+use motm_tasks::driver::{BaseDriverInputs, BaseDriverOutputs, BaseDriverTask};
 
 /// The base's state as the hardware reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -48,6 +51,21 @@ pub trait BaseHardware {
     fn fault(&self, now_ns: u64) -> Option<String>;
 }
 
+impl<H: BaseHardware + ?Sized> BaseHardware for Box<H> {
+    fn poll(&mut self, now_ns: u64) -> Result<Option<BaseState>, String> {
+        (**self).poll(now_ns)
+    }
+    fn drive(&mut self, v: f64, omega: f64) -> Result<(), String> {
+        (**self).drive(v, omega)
+    }
+    fn safe_stop(&mut self) -> Result<(), String> {
+        (**self).safe_stop()
+    }
+    fn fault(&self, now_ns: u64) -> Option<String> {
+        (**self).fault(now_ns)
+    }
+}
+
 /// Why the loop holds the base stopped.
 #[derive(Debug, Clone, PartialEq)]
 pub enum BaseFault {
@@ -75,6 +93,10 @@ pub struct BaseCounters {
 /// What one cycle did.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct CycleOutput {
+    /// The odometry to re-publish (a new state that is not stale).
+    pub odometry: Option<BaseOdometry>,
+    /// The status message, when due.
+    pub status: Option<DriverStatus>,
     /// A new state from the hardware.
     pub state: Option<BaseState>,
     /// The velocity sent.
@@ -83,26 +105,36 @@ pub struct CycleOutput {
     pub fault: Option<BaseFault>,
 }
 
-/// The base loop over hardware `H`.
-#[derive(Debug)]
+/// The base loop over hardware `H`: the base driver task of every backend
+/// ([`BaseDriverTask`]), stepped with the hardware's odometry as its `hw_state` and its
+/// `hw_command` sent to the hardware.
 pub struct BaseLoop<H> {
     hardware: H,
-    driver: VelocityDriver,
+    task: BaseDriverTask,
+    inputs: BaseDriverInputs,
     stale_after_ns: u64,
     state: Option<(BaseState, u64)>,
+    states: u64,
     faulted: bool,
     counters: BaseCounters,
 }
 
 impl<H: BaseHardware> BaseLoop<H> {
-    /// A loop driving `hardware` through `driver` (axes `[v, ω]`); odometry older than
-    /// `stale_after` is stale.
-    pub fn new(hardware: H, driver: VelocityDriver, stale_after: Duration) -> Self {
+    /// A loop driving `hardware` through `driver` (axes `[v, ω]`, a status every
+    /// `status_every` cycles); odometry older than `stale_after` is stale.
+    pub fn new(
+        hardware: H,
+        driver: VelocityDriver,
+        status_every: u64,
+        stale_after: Duration,
+    ) -> Self {
         Self {
             hardware,
-            driver,
+            task: BaseDriverTask::new(driver, status_every),
+            inputs: BaseDriverInputs::default(),
             stale_after_ns: stale_after.as_nanos() as u64,
             state: None,
+            states: 0,
             faulted: false,
             counters: BaseCounters::default(),
         }
@@ -118,9 +150,9 @@ impl<H: BaseHardware> BaseLoop<H> {
         &mut self.hardware
     }
 
-    /// The velocity driver (its counters feed the status message).
-    pub fn driver(&self) -> &VelocityDriver {
-        &self.driver
+    /// The driver task (its counters feed the status message).
+    pub fn task(&self) -> &BaseDriverTask {
+        &self.task
     }
 
     /// Counters.
@@ -135,16 +167,28 @@ impl<H: BaseHardware> BaseLoop<H> {
 
     /// Takes in one velocity command stamped `stamp_ns`.
     pub fn receive(&mut self, stamp_ns: u64, v: f64, omega: f64) {
-        self.driver.receive(stamp_ns, &[v, omega]);
+        let mut m = BaseVelocityCommand::zeroed();
+        m.header.stamp_ns = stamp_ns;
+        m.v = v;
+        m.omega = omega;
+        self.inputs.commands.push(m);
     }
 
-    /// One cycle at `now_ns` (`safe_stop`: the stack's safe-stop flag).
+    /// Takes in the stack's inputs of one cycle (every command sample, safe-stop).
+    pub fn receive_stack(&mut self, stack: &mut BaseDriverInputs) {
+        self.inputs.commands.append(&mut stack.commands);
+        self.inputs.safe_stop = stack.safe_stop;
+    }
+
+    /// One cycle at `now_ns` (`safe_stop`: the stack's safe-stop flag, on top of the one
+    /// [`BaseLoop::receive_stack`] took in).
     pub fn cycle(&mut self, now_ns: u64, safe_stop: bool) -> CycleOutput {
         let mut out = CycleOutput::default();
         let mut fault = None;
         match self.hardware.poll(now_ns) {
             Ok(Some(s)) => {
                 self.state = Some((s, now_ns));
+                self.states += 1;
                 out.state = Some(s);
             }
             Ok(None) => {}
@@ -163,15 +207,31 @@ impl<H: BaseHardware> BaseLoop<H> {
                 self.hardware.fault(now_ns).map(BaseFault::Reported)
             };
         }
-        let measured = self.state.filter(|_| !stale).map(|(s, _)| [s.v, s.omega]);
+        // The task measures (and re-publishes) only odometry that is not stale.
+        self.inputs.hw_state = self
+            .state
+            .filter(|_| !stale)
+            .map(|(s, at)| from_hardware(odometry_message(&s), self.states, at));
+        let stack_safe_stop = self.inputs.safe_stop;
+        if safe_stop {
+            self.inputs.safe_stop = Some(raised());
+        }
+        let entering = fault.is_some() && !self.faulted;
+        self.task.set_hardware_hold(fault.is_some() || self.faulted);
+        let step = self.task.step(now_ns, &self.inputs);
+        self.inputs.commands.clear();
+        self.inputs.safe_stop = stack_safe_stop;
+        out.odometry = step.odometry;
+        out.status = step.status;
+        let velocity = step.hw_command.map(|c| (c.v, c.omega));
         if fault.is_some() || self.faulted {
-            if !self.faulted {
+            if entering {
                 self.faulted = true;
                 self.counters.faults += 1;
                 self.counters.safe_stops += 1;
                 if let Err(e) = self.hardware.safe_stop() {
                     self.counters.hardware_errors += 1;
-                    eprintln!("ld60-driver: safe stop: {e}");
+                    motm_bus::say!("ld60-driver: safe stop: {e}");
                 }
             } else if let Err(_e) = self.hardware.drive(0.0, 0.0) {
                 self.counters.hardware_errors += 1;
@@ -179,21 +239,14 @@ impl<H: BaseHardware> BaseLoop<H> {
                 out.sent = Some((0.0, 0.0));
             }
             self.counters.faulted_cycles += 1;
-            let ramp = self
-                .driver
-                .step(now_ns, true, measured.as_ref().map(|m| m.as_slice()));
-            let at_rest = ramp.is_some_and(|v| v.iter().all(|x| *x == 0.0));
-            if fault.is_none() && at_rest {
+            // Driving resumes only from rest: the driver's own output has ramped to zero.
+            if fault.is_none() && velocity == Some((0.0, 0.0)) {
                 self.faulted = false;
             }
             out.fault = fault;
             return out;
         }
-        if let Some(v) =
-            self.driver
-                .step(now_ns, safe_stop, measured.as_ref().map(|m| m.as_slice()))
-        {
-            let (v, omega) = (v[0], v[1]);
+        if let Some((v, omega)) = velocity {
             match self.hardware.drive(v, omega) {
                 Ok(()) => out.sent = Some((v, omega)),
                 Err(e) => {
@@ -205,12 +258,21 @@ impl<H: BaseHardware> BaseLoop<H> {
         out
     }
 
-    /// The status message: the driver's counters; `hardware_ready` only while not faulted.
+    /// The status message now: the driver's counters; `hardware_ready` only while not
+    /// faulted.
     pub fn status(&self) -> DriverStatus {
-        let mut s = motm_driver::status_message(&self.driver.counters());
-        s.hardware_ready = u32::from(self.driver.counters().hardware_ready && !self.faulted);
+        let mut s = status_message(&self.task.counters());
+        s.hardware_ready = u32::from(self.task.counters().hardware_ready && !self.faulted);
         s
     }
+}
+
+/// A raised safe-stop message.
+fn raised() -> SafeStop {
+    let mut m = SafeStop::zeroed();
+    m.active = 1;
+    m.reason = SafeStopReason::Operator.into();
+    m
 }
 
 /// The odometry message of `state`.
@@ -225,54 +287,37 @@ pub fn odometry_message(state: &BaseState) -> BaseOdometry {
 }
 
 /// Runs `base` at `period` on the bus until SIGTERM/SIGINT: reads `BASE_VELOCITY_COMMAND`
-/// and `SAFETY_SAFE_STOP`, publishes `BASE_ODOMETRY` (waking, stamped when the state arrived)
-/// and `BASE_DRIVER_STATUS`.
+/// and `SAFETY_SAFE_STOP`, publishes `BASE_ODOMETRY` (stamped when the state arrived) and
+/// `BASE_DRIVER_STATUS` (the task's outputs), with the runtime's service settings.
 pub fn run_base<H: BaseHardware>(
     bus: &Bus,
     mut base: BaseLoop<H>,
     period: Duration,
-    status_period: Duration,
 ) -> Result<LoopExit, BusError> {
-    let qos = Qos::default();
-    let mut commands =
-        Subscriber::<BaseVelocityCommand>::new(bus, services::BASE_VELOCITY_COMMAND, &qos)?;
-    let mut safe_stop = Latest::<SafeStop>::new(bus, services::SAFETY_SAFE_STOP, &qos)?;
-    let mut odometry = Publisher::<BaseOdometry>::new(bus, services::BASE_ODOMETRY, &qos.waking())?;
-    let mut status = Publisher::<DriverStatus>::new(bus, services::BASE_DRIVER_STATUS, &qos)?;
-    let mut service = ServiceLoop::new(
-        bus,
-        LoopConfig {
-            period,
-            ..LoopConfig::default()
-        },
-    )?;
-    let status_every = (status_period.as_secs_f64() / period.as_secs_f64())
-        .round()
-        .max(1.0) as u64;
+    let mut stack = StackPorts::<BaseDriverTask>::open(bus, &LD60_DRIVER)?;
+    let mut service = ServiceLoop::new(bus, motm_driver::loop_config(period))?;
     let mut last_fault = None;
-    service.run_periodic(|cycle| {
-        while let Ok(Some(c)) = commands.receive() {
-            base.receive(c.header().stamp_ns, c.v, c.omega);
-        }
-        safe_stop.update().ok();
-        let stopped = safe_stop.get().is_some_and(|s| s.active == 1);
-        let out = base.cycle(cycle.now_ns, stopped);
-        if let Some(s) = out.state
-            && let Err(e) = odometry.publish_stamped(Stamp::At(cycle.now_ns), odometry_message(&s))
-        {
-            eprintln!("{}: {e}", bus.process());
-        }
+    let exit = service.run_periodic(|cycle| {
+        base.receive_stack(stack.read());
+        let out = base.cycle(cycle.now_ns, false);
         if out.fault != last_fault {
             if let Some(f) = &out.fault {
-                eprintln!("{}: base held stopped: {f:?}", bus.process());
+                motm_bus::say!("{}: base held stopped: {f:?}", bus.process());
             }
             last_fault = out.fault.clone();
         }
-        if cycle.cycle % status_every == 0
-            && let Err(e) = status.publish(base.status())
-        {
-            eprintln!("{}: {e}", bus.process());
-        }
+        stack.write(BaseDriverOutputs {
+            hw_command: None,
+            odometry: out.odometry,
+            status: out.status,
+        });
         Flow::Continue
-    })
+    })?;
+    motm_bus::say!(
+        "{}: stopped; {:?}; {}",
+        bus.process(),
+        base.counters(),
+        motm_driver::details(&base.task().counters())
+    );
+    Ok(exit)
 }

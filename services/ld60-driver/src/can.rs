@@ -3,9 +3,49 @@
 //! [`CanBus`] (a `socketcan` socket on a robot, the in-memory bus in tests, a replayed
 //! `candump -L` log).
 
-use motm_agilex::{AgilexHost, CanBus, HostConfig, HostFault};
+use motm_agilex::{AgilexHost, CanBus, HostConfig, HostFault, SocketCanBus};
 
 use crate::base::{BaseHardware, BaseState};
+use crate::config::CanConfig;
+use motm_driver::{EXIT_BAD_INPUT, EXIT_FAILED};
+
+/// Opens the AgileX base of `config` on CAN interface `interface` (the config's unless
+/// given) and enables command mode. An interface that cannot be opened is an error naming
+/// `--can-interface`, and nothing is sent: with the exit code for bad input when no such
+/// interface exists (ENODEV), for a failure otherwise (no CAN support in the kernel, no
+/// permission, a failed enable).
+pub fn open(
+    config: &CanConfig,
+    interface: Option<&str>,
+) -> Result<CanBase<SocketCanBus>, (u8, String)> {
+    let interface = interface.unwrap_or(&config.interface);
+    let socket = SocketCanBus::open(interface).map_err(|e| {
+        let code = if e.raw_os_error() == Some(libc::ENODEV) {
+            EXIT_BAD_INPUT
+        } else {
+            EXIT_FAILED
+        };
+        let hint = if motm_agilex::bus::is_unsupported(&e) {
+            "this kernel has no CAN sockets (AF_CAN)".to_owned()
+        } else {
+            format!("is the interface up? `ip link set {interface} up type can bitrate 500000`")
+        };
+        (
+            code,
+            format!("--can-interface {interface}: cannot open the CAN socket: {e} ({hint})"),
+        )
+    })?;
+    let host = HostConfig {
+        track_width: config.track_width,
+        feedback_timeout: config.feedback_timeout_ms * 1e-3,
+    };
+    CanBase::new(socket, host).map_err(|e| {
+        (
+            EXIT_FAILED,
+            format!("--can-interface {interface}: enable: {e}"),
+        )
+    })
+}
 
 /// An AgileX base on bus `B`.
 #[derive(Debug)]

@@ -12,19 +12,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Parser;
-use motm_agilex::{HostConfig, SocketCanBus};
 use motm_bus::Bus;
-use motm_core::command_limiter::AxisLimits;
-use motm_driver::{Backend, DriverArgs, DriverTopics, EXIT_BAD_INPUT, EXIT_FAILED};
+use motm_core::resolve_config_dir;
+use motm_driver::{Backend, DriverArgs, EXIT_BAD_INPUT, EXIT_FAILED, loop_config};
+use motm_graph::LD60_DRIVER;
 use motm_ld60_driver::arnl::ArnlBase;
-use motm_ld60_driver::base::{BaseLoop, run_base};
-use motm_ld60_driver::can::CanBase;
+use motm_ld60_driver::base::{BaseHardware, BaseLoop, run_base};
+use motm_ld60_driver::can;
 use motm_ld60_driver::config::BaseConfig;
-use motm_msgs::{BaseOdometry, BaseVelocityCommand, Message, services};
-use motm_wire::setup::resolve_config_dir;
-
-/// Default driver loop rate, Hz.
-const DEFAULT_RATE_HZ: f64 = 50.0;
+use motm_tasks::driver::{BaseDriverTask, base_axes};
 
 /// The base driver: base velocity commands and odometry.
 #[derive(Parser)]
@@ -45,148 +41,87 @@ struct Cli {
     /// `arnl`: ARCL port, 0 to not watch ARCL (default: the base config's).
     #[arg(long)]
     arcl_port: Option<u16>,
+    /// `arnl`: updateNumbers request interval, ms (default: the base config's).
+    #[arg(long)]
+    update_interval_ms: Option<i32>,
     /// `can`: CAN interface (default: the base config's).
     #[arg(long)]
     can_interface: Option<String>,
 }
 
-/// The base's services and conversions; the axes are `[v, omega]`.
-struct Base;
-
-impl DriverTopics for Base {
-    type Command = BaseVelocityCommand;
-    type State = BaseOdometry;
-    const COMMAND: &'static str = services::BASE_VELOCITY_COMMAND;
-    const HW_COMMAND: &'static str = services::HW_BASE_COMMAND;
-    const HW_STATE: &'static str = services::HW_BASE_STATE;
-    const STATE: &'static str = services::BASE_ODOMETRY;
-    const STATUS: &'static str = services::BASE_DRIVER_STATUS;
-
-    fn command_velocity(command: &BaseVelocityCommand, out: &mut Vec<f64>) {
-        out.extend_from_slice(&[command.v, command.omega]);
-    }
-
-    fn state_velocity(state: &BaseOdometry, out: &mut Vec<f64>) {
-        out.extend_from_slice(&[state.v, state.omega]);
-    }
-
-    fn hardware_command(velocity: &[f64]) -> BaseVelocityCommand {
-        let mut command = BaseVelocityCommand::zeroed();
-        command.v = velocity[0];
-        command.omega = velocity[1];
-        command
-    }
-}
-
-fn run(cli: Cli) -> Result<(), (u8, String)> {
+fn run(cli: Cli) -> Result<ExitCode, (u8, String)> {
     let args = &cli.driver;
     let bad = |e: String| (EXIT_BAD_INPUT, e);
+    args.apply_priority(LD60_DRIVER.name).map_err(bad)?;
     let robot = args.load_robot().map_err(bad)?;
-    let period = args.period(DEFAULT_RATE_HZ).map_err(bad)?;
-    // Robot joints are [base_yaw (omega), base_forward (v), arm...]; the axes are [v, omega].
-    let limits = robot.limits();
-    let axes = vec![AxisLimits::from(&limits[1]), AxisLimits::from(&limits[0])];
-    let driver = args.driver(axes, period).map_err(bad)?;
+    let period = args
+        .period(LD60_DRIVER.rate.hz(args.control_rate))
+        .map_err(bad)?;
+    let driver = args.driver(base_axes(&robot), period).map_err(bad)?;
+    let status_every = args.status_every(period);
     let failed = |e: motm_bus::BusError| (EXIT_FAILED, e.to_string());
-    let status_period = Duration::from_secs_f64(1.0 / args.status_rate);
-    let base_config = |default: &str| {
+    if args.backend == Backend::Sim {
+        let mut task = BaseDriverTask::new(driver, status_every);
+        return Ok(motm_runtime::serve(
+            &LD60_DRIVER,
+            &mut task,
+            loop_config(period),
+            |t| motm_driver::details(&t.counters()),
+        ));
+    }
+    let base = |default: &str| {
         let dir = resolve_config_dir(args.config_dir.as_deref());
         let name = cli.base_config.as_deref().unwrap_or(default);
         BaseConfig::from_file(&BaseConfig::path(&dir, name)).map_err(bad)
     };
+    let missing = |section: &str| bad(format!("--base-config: the base config has no [{section}]"));
+    let serve = |hardware, stale_ms: f64| {
+        let stale = Duration::from_secs_f64(stale_ms * 1e-3);
+        let bus = Bus::open(LD60_DRIVER.name).map_err(failed)?;
+        run_base(
+            &bus,
+            BaseLoop::new(hardware, driver, status_every, stale),
+            period,
+        )
+        .map(drop)
+        .map_err(failed)
+    };
     match args.backend {
-        Backend::Fci => {
-            return Err(bad(
-                "--backend fci: the Franka arm's backend; the base driver takes sim, arnl or can"
-                    .into(),
-            ));
-        }
-        Backend::Sim => {
-            let bus = Bus::open("ld60-driver").map_err(failed)?;
-            motm_driver::run_driver::<Base>(&bus, driver, period, status_period, |_, _| {})
-                .map_err(failed)?;
-        }
         Backend::Arnl => {
-            let config = base_config("ld60")?;
-            let a = config
-                .arnl
-                .ok_or_else(|| bad("the base config has no [arnl]".into()))?;
-            let addr = (cli.host.as_str(), cli.port.unwrap_or(a.port));
-            let client = motm_omron::ArClient::connect(addr, &a.client()).map_err(|e| {
-                (
-                    EXIT_FAILED,
-                    format!("ArNetworking {}:{}: {e}", addr.0, addr.1),
-                )
-            })?;
-            let mut hardware = ArnlBase::new(client, a.drive_limits());
-            let arcl_port = cli.arcl_port.unwrap_or(a.arcl_port);
-            if arcl_port != 0 {
-                let arcl =
-                    std::net::ToSocketAddrs::to_socket_addrs(&(cli.host.as_str(), arcl_port))
-                        .ok()
-                        .and_then(|mut a| a.next());
-                let watched = arcl
-                    .ok_or_else(|| "no address".to_owned())
-                    .and_then(|addr| {
-                        hardware.watch_arcl(addr, &a.arcl_password, a.client().timeout)
-                    });
-                if let Err(e) = watched {
-                    eprintln!("ld60-driver: ARCL not watched (e-stop lines unseen): {e}");
+            let mut a = base("ld60")?.arnl.ok_or_else(|| missing("arnl"))?;
+            match cli.update_interval_ms {
+                Some(ms) if ms <= 0 => {
+                    return Err(bad(format!("--update-interval-ms: must be > 0, got {ms}")));
                 }
+                Some(ms) => a.update_interval_ms = ms,
+                None => {}
             }
-            let stale = Duration::from_secs_f64(a.odometry_stale_ms * 1e-3);
-            let bus = Bus::open("ld60-driver").map_err(failed)?;
-            run_base(
-                &bus,
-                BaseLoop::new(hardware, driver, stale),
-                period,
-                status_period,
+            let wait = args.connect_wait().map_err(bad)?;
+            let hardware = ArnlBase::open(&a, &cli.host, cli.port, cli.arcl_port, wait)
+                .map_err(|e| (EXIT_FAILED, e))?;
+            serve(
+                Box::new(hardware) as Box<dyn BaseHardware>,
+                a.odometry_stale_ms,
             )
-            .map_err(failed)?;
+            .map(|()| ExitCode::SUCCESS)
         }
         Backend::Can => {
-            let config = base_config("scout")?;
-            let c = config
-                .can
-                .ok_or_else(|| bad("the base config has no [can]".into()))?;
-            let interface = cli.can_interface.clone().unwrap_or(c.interface.clone());
-            let socket = SocketCanBus::open(&interface)
-                .map_err(|e| (EXIT_FAILED, format!("CAN interface {interface}: {e}")))?;
-            let host = HostConfig {
-                track_width: c.track_width,
-                feedback_timeout: c.feedback_timeout_ms * 1e-3,
-            };
-            let hardware = CanBase::new(socket, host).map_err(|e| (EXIT_FAILED, e))?;
-            let stale = Duration::from_secs_f64(c.feedback_timeout_ms * 1e-3);
-            let bus = Bus::open("ld60-driver").map_err(failed)?;
-            run_base(
-                &bus,
-                BaseLoop::new(hardware, driver, stale),
-                period,
-                status_period,
-            )
-            .map_err(failed)?;
+            let c = base("scout")?.can.ok_or_else(|| missing("can"))?;
+            let hardware = can::open(&c, cli.can_interface.as_deref())?;
+            serve(Box::new(hardware), c.feedback_timeout_ms).map(|()| ExitCode::SUCCESS)
         }
+        Backend::Sim | Backend::Fci => Err(bad(
+            "--backend fci: the Franka arm's backend; the base driver takes sim, arnl or can"
+                .into(),
+        )),
     }
-    Ok(())
 }
 
 fn main() -> ExitCode {
     // clap prints usage errors and exits with code 2 (bad input), help with 0.
     let cli = Cli::parse();
-    motm_driver::exit("ld60-driver", run(cli))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn base_commands_map_v_and_omega_in_axis_order() {
-        let command = Base::hardware_command(&[0.3, -0.1]);
-        assert_eq!((command.v, command.omega), (0.3, -0.1));
-        let mut values = Vec::new();
-        Base::command_velocity(&command, &mut values);
-        assert_eq!(values, vec![0.3, -0.1]);
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => motm_driver::exit("ld60-driver", Err(e)),
     }
 }

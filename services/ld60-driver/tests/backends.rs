@@ -65,16 +65,19 @@ fn ld60_drives_within_limits_and_stale_odometry_gives_a_safe_stop() {
     let mut base = BaseLoop::new(
         ArnlBase::new(client, ld60.drive_limits()),
         driver(),
+        1,
         stale_after,
     );
     let origin = Instant::now();
     let mut moving_at = None;
     let mut fault_at = None;
     let mut stopped_ok = false;
+    let mut first_cycle = None;
     while origin.elapsed() < Duration::from_millis(2600) {
         let t = now_ns(origin);
         base.receive(t, 0.3, 0.2);
         let out = base.cycle(t, false);
+        first_cycle.get_or_insert_with(|| out.clone());
         if moving_at.is_none() && robot.commanded().0 > 0.1 {
             moving_at = Some(origin.elapsed());
         }
@@ -95,8 +98,17 @@ fn ld60_drives_within_limits_and_stale_odometry_gives_a_safe_stop() {
     assert!(stopped_ok, "the robot is stopped");
     assert!(fake.stops >= 1, "{fake:?}");
     assert!(base.faulted());
-    // One safe stop at the start (no odometry yet), one when it went stale.
-    assert_eq!(base.counters().safe_stops, 2);
+    // One safe stop at the start when the first cycle had no odometry yet (the fake answers
+    // the updateNumbers request at once, so on a loaded machine it may already be there), and
+    // one when it went stale.
+    let first = first_cycle.unwrap();
+    let at_start = u64::from(first.state.is_none());
+    assert_eq!(
+        first.fault.is_some(),
+        first.state.is_none(),
+        "a safe stop at the start exactly without odometry: {first:?}"
+    );
+    assert_eq!(base.counters().safe_stops, at_start + 1);
     // Every drive the robot saw was within Frankie's speed and acceleration limits.
     assert_eq!(
         (fake.speed_violations, fake.accel_violations),
@@ -124,6 +136,7 @@ fn a_dropped_connection_is_a_counted_error_and_a_safe_stop_never_a_command() {
     let mut base = BaseLoop::new(
         ArnlBase::new(client, limits),
         driver(),
+        1,
         Duration::from_millis(300),
     );
     let origin = Instant::now();
@@ -164,6 +177,7 @@ fn can_enable_then_50_hz_commands_then_silence_stops_the_base() {
     let mut base = BaseLoop::new(
         CanBase::new(host_end, HostConfig::default()).unwrap(),
         driver(),
+        1,
         Duration::from_millis(200),
     );
     // The driver at 50 Hz, the fake base stepped every 10 ms, on a simulated clock.
@@ -209,6 +223,7 @@ fn a_candump_log_replayed_into_the_can_driver_gives_the_expected_odometry() {
     let mut base = BaseLoop::new(
         CanBase::new(ReplayBus::new(reader), HostConfig::default()).unwrap(),
         driver(),
+        1,
         Duration::from_millis(200),
     );
     let mut t_ms = 0;
@@ -270,4 +285,113 @@ fn the_base_configs_and_the_arnl_stack_parse() {
         args.windows(2).any(|w| w == ["--backend", "arnl"]),
         "{args:?}"
     );
+}
+
+#[test]
+fn a_dropped_arnetworking_connection_is_made_again_and_driving_resumes_from_rest() {
+    let ld60 = BaseConfig::from_file(&config_dir().join("bases/ld60.toml"))
+        .unwrap()
+        .arnl
+        .unwrap();
+    let fake_config = FakeConfig {
+        arnl_addr: SocketAddr::from(([127, 0, 0, 1], 0)),
+        arcl_addr: None,
+        drive: ld60.drive_limits(),
+        update_period: Duration::from_millis(20),
+        ..FakeConfig::default()
+    };
+    let first = FakeLd60::start(fake_config.clone()).unwrap();
+    let addr = first.arnl_addr();
+    let physics = spawn_kinematic(&first, Duration::from_millis(5));
+    let mut client = ld60.client();
+    client.update_interval_ms = 20;
+    let hardware = ArnlBase::connect(addr, client, ld60.drive_limits()).unwrap();
+    let mut base = BaseLoop::new(hardware, driver(), 1, Duration::from_millis(300));
+    let origin = Instant::now();
+    let cycle = |base: &mut BaseLoop<ArnlBase>| {
+        let t = now_ns(origin);
+        base.receive(t, 0.2, 0.0);
+        let out = base.cycle(t, false);
+        std::thread::sleep(Duration::from_millis(20));
+        out
+    };
+    let mut moved = false;
+    for _ in 0..40 {
+        cycle(&mut base);
+        moved |= first.commanded().0 > 0.1;
+    }
+    assert!(moved && !base.faulted(), "{:?}", base.counters());
+    let errors_before = base.counters().hardware_errors;
+    first.shutdown();
+    physics.join().unwrap();
+    // The robot is gone: once the close is seen (within two cycles), every cycle is faulted
+    // and nothing is sent; the base reconnects (in vain) at most every RECONNECT_EVERY.
+    let outs: Vec<_> = (0..10).map(|_| cycle(&mut base)).collect();
+    assert!(
+        outs[2..]
+            .iter()
+            .all(|o| o.sent.is_none() && o.fault.is_some()),
+        "{outs:?}"
+    );
+    assert!(base.faulted() && !base.hardware().connected());
+    assert!(base.counters().hardware_errors > errors_before);
+    // The robot is back on the same address: the driver connects again with the whole
+    // handshake and, once odometry flows, drives from rest.
+    let second = FakeLd60::start(FakeConfig {
+        arnl_addr: addr,
+        ..fake_config
+    })
+    .unwrap();
+    let physics = spawn_kinematic(&second, Duration::from_millis(5));
+    let mut resumed = None;
+    let mut first_drive = None;
+    for i in 0..150 {
+        let out = cycle(&mut base);
+        if base.hardware().connected() && !base.faulted() && resumed.is_none() {
+            resumed = Some(i);
+        }
+        if first_drive.is_none()
+            && let Some((v, _)) = out.sent
+            && v > 0.0
+        {
+            first_drive = Some(v);
+        }
+        if resumed.is_some() && second.commanded().0 > 0.1 {
+            break;
+        }
+    }
+    assert!(resumed.is_some(), "never resumed: {:?}", base.counters());
+    assert_eq!(base.hardware().reconnects, 1);
+    let fake = second.counters();
+    assert_eq!(fake.clients, 1, "{fake:?}");
+    assert!(second.commanded().0 > 0.1, "driving resumed: {fake:?}");
+    // From rest: the first drive after the reconnection is one acceleration step (0.8 m/s² at
+    // 50 Hz), and the fake robot saw no drive beyond its limits.
+    assert!(first_drive.unwrap() <= 0.8 * 0.02 + 1e-9, "{first_drive:?}");
+    assert_eq!(
+        (fake.speed_violations, fake.accel_violations),
+        (0, 0),
+        "{fake:?}"
+    );
+    second.shutdown();
+    physics.join().unwrap();
+}
+
+#[test]
+fn a_can_interface_that_cannot_be_opened_is_named_and_nothing_runs() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ld60-driver"))
+        .args(["--backend", "can", "--can-interface", "motmnosuch0"])
+        .env("MOTM_IPC_PREFIX", format!("motmcan{}_", std::process::id()))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--can-interface motmnosuch0: cannot open the CAN socket"),
+        "{stderr}"
+    );
+    // No such interface is bad input (2); a kernel without CAN sockets is a failure (1).
+    let expected = if stderr.contains("AF_CAN") { 1 } else { 2 };
+    assert_eq!(out.status.code(), Some(expected), "{stderr}");
+    // It stopped before the bus: no driver status line, no loop.
+    assert!(!stderr.contains("stopped;"), "{stderr}");
 }

@@ -85,6 +85,11 @@ impl ChannelRegistry {
         }
     }
 
+    /// Unix minus monotonic time, ns: what moves a sample's stamp to its log time.
+    pub fn unix_offset_ns(&self) -> i128 {
+        self.unix_offset_ns
+    }
+
     /// Encodes `record`, making its channel when it is the topic's first.
     pub fn encode<'a>(&'a mut self, record: &'a Record) -> EncodedMessage<'a> {
         let unix_ns = (i128::from(record.stamp_ns) + self.unix_offset_ns).max(0) as u64;
@@ -119,6 +124,7 @@ impl ChannelRegistry {
             data: match &record.payload {
                 Payload::Protobuf(_, bytes) => Cow::Borrowed(bytes.as_slice()),
                 Payload::Json(value) => Cow::Owned(value.to_string().into_bytes()),
+                Payload::Raw(_, bytes) => Cow::Borrowed(bytes.as_slice()),
             },
         }
     }
@@ -139,6 +145,14 @@ fn channel_of(id: u16, record: &Record) -> ChannelInfo {
             schema_name: schema.name.to_owned(),
             schema_encoding: PROTOBUF,
             schema: Cow::Borrowed(schema.descriptor),
+        },
+        Payload::Raw(type_name, _) => ChannelInfo {
+            id,
+            topic: record.topic.clone(),
+            message_encoding: crate::replay_log::RAW_ENCODING,
+            schema_name: (*type_name).to_owned(),
+            schema_encoding: "",
+            schema: Cow::Borrowed(&[]),
         },
         Payload::Json(value) => {
             let mut schema = schema_of(value);

@@ -48,13 +48,20 @@ impl ToJson for msgs::BaseOdometry {
 
 impl ToJson for msgs::BaseVelocityCommand {
     fn to_json(&self) -> Value {
-        json!({ "seq": self.header.seq, "v": self.v, "omega": self.omega })
+        json!({
+            "seq": self.header.seq, "v": self.v, "omega": self.omega,
+            "resolver_id": self.resolver_id,
+        })
     }
 }
 
 impl ToJson for msgs::ArmVelocityCommand {
     fn to_json(&self) -> Value {
-        json!({ "seq": self.header.seq, "velocity": used(&self.velocity, self.joint_count) })
+        json!({
+            "seq": self.header.seq,
+            "velocity": used(&self.velocity, self.joint_count),
+            "resolver_id": self.resolver_id,
+        })
     }
 }
 
@@ -91,6 +98,7 @@ impl ToJson for msgs::TargetEstimate {
             "position": self.position,
             "velocity": self.velocity,
             "visible": self.visible,
+            "task_index": self.task_index,
         })
     }
 }
@@ -238,6 +246,7 @@ impl ToJson for msgs::SimTruth {
             "tool_position": self.tool_position,
             "base_pose": self.base_pose,
             "held_object": self.held_object,
+            "buttons_pressed": self.buttons_pressed,
             "gripper_opening": self.gripper_opening,
             "object_positions": &self.object_positions[..3 * count],
         })
@@ -256,6 +265,9 @@ impl ToJson for msgs::DriverStatus {
             "safe_stop_cycles": self.safe_stop_cycles,
             "output_violations": self.output_violations,
             "max_command_gap_ms": self.max_command_gap_ns as f64 / 1e6,
+            "resolver_id": self.resolver_id,
+            "resolver_takeovers": self.resolver_takeovers,
+            "max_takeover_interval_ms": self.max_takeover_interval_ns as f64 / 1e6,
         })
     }
 }

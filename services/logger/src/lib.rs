@@ -9,6 +9,7 @@
 //! - [`live`]: encoded messages → the Foxglove WebSocket live view.
 //! - [`inspect`]: scanning a (possibly cut-off) log; [`protobuf_check`]: decoding with the
 //!   schema stored in the file.
+//! - [`replay_log`]: the raw samples and cycle records that `motm replay` reads.
 //! - [`foxglove`], [`json`]: the message encodings.
 
 pub mod channels;
@@ -18,6 +19,7 @@ pub mod json;
 pub mod live;
 pub mod protobuf_check;
 pub mod recorder;
+pub mod replay_log;
 pub mod sink;
 pub mod writeback;
 

@@ -20,12 +20,12 @@ use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use motm_bus::{Bus, BusError, Flow, LoopConfig, ServiceLoop, Subscriber};
 use motm_logger::json::ToJson;
-use motm_logger::recorder::{Recorder, topics};
+use motm_logger::recorder::{Payload, Recorder, topics};
+use motm_logger::replay_log::{self, TrialInfo};
 use motm_logger::{
     ChannelRegistry, LiveSink, LoggerConfig, McapSink, Record, SceneLayout, WritebackFile,
 };
 use motm_msgs::{self as msgs, Message, Topic, TopicSpec, services};
-use serde_json::json;
 
 /// Process (and heartbeat) name.
 const PROCESS: &str = "logger";
@@ -73,6 +73,16 @@ struct Cli {
     /// Logger settings: a TOML file with keys of the logger config (rates, decimation, chunk size).
     #[arg(long)]
     settings: Option<PathBuf>,
+    /// Also write the replay log (every sample raw, every task cycle's record) for `motm
+    /// replay`; with `--scenario`, `--seed` and `--base-speed` describing the run.
+    #[arg(long)]
+    replay: bool,
+    /// The run's seed (with `--replay`).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The run's base speed, m/s (with `--replay`; default: the scenario's).
+    #[arg(long)]
+    base_speed: Option<f64>,
 }
 
 /// One tapped service: its subscriber (once the service exists), what to do with a sample,
@@ -81,8 +91,8 @@ struct Tap<M: Message> {
     service: String,
     subscriber: Option<Subscriber<M>>,
     handle: fn(&mut Recorder, &str, &M, &mut Vec<Record>),
-    /// Last `(publisher id, sequence number)` read, to count lost samples.
-    last: Option<(u128, u64)>,
+    /// Last sequence number read from each publisher, to count lost samples.
+    last: Vec<(u128, u64)>,
     received: u64,
     lost: u64,
     attach_error: Option<String>,
@@ -90,8 +100,9 @@ struct Tap<M: Message> {
 
 /// A tap of any payload type.
 trait Source {
-    /// Attaches the subscriber if the service exists now.
-    fn attach(&mut self, bus: &Bus);
+    /// Attaches the subscriber if the service exists now; with `create`, creates the service
+    /// (with the settings every process of the stack gives it) when it does not.
+    fn attach(&mut self, bus: &Bus, create: bool);
     /// Reads every queued sample into records.
     fn drain(&mut self, recorder: &mut Recorder, out: &mut Vec<Record>) -> Result<(), BusError>;
     /// Service name, samples read, samples lost (queue overflow).
@@ -118,7 +129,7 @@ impl<M: Message> Tap<M> {
             service: service.to_owned(),
             subscriber: None,
             handle,
-            last: None,
+            last: Vec::new(),
             received: 0,
             lost: 0,
             attach_error: None,
@@ -127,16 +138,21 @@ impl<M: Message> Tap<M> {
 }
 
 impl<M: Message> Source for Tap<M> {
-    fn attach(&mut self, bus: &Bus) {
+    fn attach(&mut self, bus: &Bus, create: bool) {
         if self.subscriber.is_some() {
             return;
         }
-        match Subscriber::<M>::attach(bus, &self.service) {
+        let attached = if create {
+            Subscriber::<M>::tap(bus, &self.service, &motm_runtime::qos(&self.service)).map(Some)
+        } else {
+            Subscriber::<M>::attach(bus, &self.service)
+        };
+        match attached {
             Ok(subscriber) => self.subscriber = subscriber,
             Err(e) => {
                 let text = e.to_string();
                 if self.attach_error.as_deref() != Some(&text) {
-                    eprintln!("{PROCESS}: {text} (retrying)");
+                    motm_bus::say!("{PROCESS}: {text} (retrying)");
                     self.attach_error = Some(text);
                 }
             }
@@ -150,13 +166,15 @@ impl<M: Message> Source for Tap<M> {
         while let Some(sample) = subscriber.receive()? {
             let publisher = sample.publisher_id();
             let seq = sample.header().seq;
-            if let Some((last_publisher, last_seq)) = self.last
-                && last_publisher == publisher
-            {
-                self.lost += seq.saturating_sub(last_seq + 1);
+            match self.last.iter_mut().find(|(p, _)| *p == publisher) {
+                Some((_, last_seq)) => {
+                    self.lost += seq.saturating_sub(*last_seq + 1);
+                    *last_seq = seq;
+                }
+                None => self.last.push((publisher, seq)),
             }
-            self.last = Some((publisher, seq));
             self.received += 1;
+            recorder.replay_sample(&self.service, &*sample, out);
             (self.handle)(recorder, &self.service, &sample, out);
         }
         Ok(())
@@ -252,19 +270,29 @@ fn tap_of(topic: TopicSpec) -> Option<Box<dyn Source>> {
 /// publishes ([`motm_graph::published_topics`]) and the supervisor's hot-swap services.
 fn fixed_taps() -> Vec<Box<dyn Source>> {
     use motm_msgs::topics as t;
-    let mut taps: Vec<Box<dyn Source>> = motm_graph::published_topics()
-        .into_iter()
-        .filter_map(|topic| {
-            let tap = tap_of(topic);
-            if tap.is_none() {
-                eprintln!(
-                    "{PROCESS}: {} not logged: no tap for its payload {}",
-                    topic.name, topic.type_name
-                );
-            }
-            tap
-        })
-        .collect();
+    // The cycle records come first, so each pass drains them before the samples: a task
+    // publishes a cycle's record after its outputs, and its inputs before that, so every record
+    // a pass reads has its samples queued already and read in the same pass. (Drained last, a
+    // record published during the pass would leave its samples to the next pass, and the last
+    // pass at shutdown would log records whose samples it never read.)
+    let mut taps: Vec<Box<dyn Source>> = vec![Tap::typed(t::REPLAY_CYCLES, |r, _, m, out| {
+        r.task_cycle(m, out)
+    })];
+    taps.extend(
+        motm_graph::published_topics()
+            .into_iter()
+            .filter_map(|topic| {
+                let tap = tap_of(topic);
+                if tap.is_none() {
+                    motm_bus::say!(
+                        "{PROCESS}: {} not logged: no tap for its payload {}",
+                        topic.name,
+                        topic.type_name
+                    );
+                }
+                tap
+            }),
+    );
     taps.push(Tap::typed(t::SUPERVISOR_SWAP_REQUEST, raw));
     taps.push(Tap::typed(t::SUPERVISOR_SWAP_STATUS, raw));
     taps
@@ -274,6 +302,15 @@ fn fixed_taps() -> Vec<Box<dyn Source>> {
 /// and publishes `heartbeat(name)`; names come from the supervisor's table at once and from a
 /// listing of the prefix's live nodes (see [`LIST_PERIOD_NS`]). A name without a heartbeat
 /// service (a tool such as `motm status`) is tried again at the next listing.
+/// Whether `service` is one of the graph's topics or the cycle records: what the replay log
+/// must hold from the first sample.
+fn is_graph_service(service: &str) -> bool {
+    service == services::REPLAY_CYCLES
+        || motm_graph::published_topics()
+            .iter()
+            .any(|t| t.name == service)
+}
+
 struct HeartbeatDiscovery {
     /// The iceoryx2 config of the prefix (read once: it does not change under a running stack).
     config: iceoryx2::config::Config,
@@ -328,7 +365,7 @@ impl HeartbeatDiscovery {
                 continue;
             }
             let mut tap = Tap::<msgs::Heartbeat>::boxed(&service, raw);
-            tap.attach(bus);
+            tap.attach(bus, false);
             if tap.attached() {
                 self.tapped.insert(service);
                 taps.push(tap);
@@ -338,7 +375,7 @@ impl HeartbeatDiscovery {
 }
 
 /// Loads the settings, the robot and the scene layout.
-fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
+fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder, Option<TrialInfo>), String> {
     let config_dir = motm_core::resolve_config_dir(cli.config_dir.as_deref());
     let config: LoggerConfig = match &cli.settings {
         Some(path) => {
@@ -347,6 +384,14 @@ fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
             toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?
         }
         None => LoggerConfig::default(),
+    };
+    let replay = config.replay || cli.replay;
+    let config = LoggerConfig {
+        replay,
+        // A replay log must hold every sample: the logger then competes for the CPU like the
+        // stack's processes instead of waiting for idle time.
+        idle_scheduling: config.idle_scheduling && !replay,
+        ..config
     };
     for (key, value) in [
         ("poll_rate_hz", config.poll_rate_hz),
@@ -360,16 +405,26 @@ fn setup(cli: &Cli) -> Result<(LoggerConfig, Recorder), String> {
     }
     let robot =
         motm_core::robot::Robot::load(&config_dir, &cli.robot).map_err(|e| e.to_string())?;
+    let mut trial = None;
     let layout = match &cli.scenario {
         Some(name) => {
             let path = motm_sim::scenario_path(&config_dir, name);
-            SceneLayout::from_scenario(
-                &motm_sim::Scenario::from_file(&path).map_err(|e| e.to_string())?,
-            )
+            let scenario = motm_sim::Scenario::from_file(&path).map_err(|e| e.to_string())?;
+            trial = Some(TrialInfo {
+                scenario: path,
+                seed: cli.seed,
+                base_speed: cli.base_speed.unwrap_or(scenario.base_speed),
+            });
+            SceneLayout::from_scenario(&scenario)
         }
         None => SceneLayout::default(),
     };
-    Ok((config.clone(), Recorder::new(robot, layout, config)))
+    let trial = match (config.replay, trial) {
+        (false, _) => None,
+        (true, Some(trial)) => Some(trial),
+        (true, None) => return Err("--replay: needs --scenario (the run replay rebuilds)".into()),
+    };
+    Ok((config.clone(), Recorder::new(robot, layout, config), trial))
 }
 
 /// Monotonic → Unix time offset, ns.
@@ -382,10 +437,10 @@ fn unix_offset_ns() -> i128 {
 
 fn main() {
     let cli = Cli::parse();
-    let (config, mut recorder) = match setup(&cli) {
+    let (config, mut recorder, trial) = match setup(&cli) {
         Ok(setup) => setup,
         Err(e) => {
-            eprintln!("{PROCESS}: {e}");
+            motm_bus::say!("{PROCESS}: {e}");
             std::process::exit(2);
         }
     };
@@ -394,18 +449,20 @@ fn main() {
         // SAFETY: sched_setscheduler(2) reads `param` only. A failure leaves the normal
         // policy, which is only less polite.
         if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
-            eprintln!("{PROCESS}: cannot switch to SCHED_IDLE; running at normal priority");
+            motm_bus::say!("{PROCESS}: cannot switch to SCHED_IDLE; running at normal priority");
         }
         // ioprio_set(IOPRIO_WHO_PROCESS, self, IOPRIO_CLASS_IDLE): the disk only when idle.
         const IOPRIO_WHO_PROCESS: libc::c_long = 1;
         const IOPRIO_IDLE: libc::c_long = 3 << 13;
         // SAFETY: ioprio_set(2) takes plain integers. A failure keeps the normal I/O class.
         if unsafe { libc::syscall(libc::SYS_ioprio_set, IOPRIO_WHO_PROCESS, 0, IOPRIO_IDLE) } != 0 {
-            eprintln!("{PROCESS}: cannot switch to the idle I/O class; keeping the normal one");
+            motm_bus::say!(
+                "{PROCESS}: cannot switch to the idle I/O class; keeping the normal one"
+            );
         }
     }
-    if let Err(e) = run(&cli, &config, &mut recorder) {
-        eprintln!("{PROCESS}: {e}");
+    if let Err(e) = run(&cli, &config, &mut recorder, trial) {
+        motm_bus::say!("{PROCESS}: {e}");
         std::process::exit(1);
     }
 }
@@ -438,7 +495,7 @@ impl Sinks {
                 let bound = live
                     .local_addr()
                     .map_err(|e| format!("--live {addr}: {e}"))?;
-                eprintln!("{PROCESS}: Foxglove WebSocket live view on ws://{bound}");
+                motm_bus::say!("{PROCESS}: Foxglove WebSocket live view on ws://{bound}");
                 Some(live)
             }
             None => None,
@@ -457,7 +514,10 @@ impl Sinks {
             file.write(&message)
                 .map_err(|e| format!("{}: {e}", path.display()))?;
         }
-        if let Some(live) = &mut self.live {
+        // The replay log's raw samples go to the file only: no viewer decodes them.
+        if let Some(live) = &mut self.live
+            && !matches!(record.payload, Payload::Raw(..))
+        {
             live.write(&message);
         }
         Ok(())
@@ -498,12 +558,44 @@ impl Sinks {
 }
 
 /// Taps the bus until SIGTERM/SIGINT, then finishes the file.
-fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), String> {
+fn run(
+    cli: &Cli,
+    config: &LoggerConfig,
+    recorder: &mut Recorder,
+    trial: Option<TrialInfo>,
+) -> Result<(), String> {
     let mut sinks = Sinks::open(cli, config)?;
+    recorder.set_unix_offset(sinks.channels.unix_offset_ns());
+    if let Some(trial) = trial {
+        sinks.write(&Record {
+            topic: replay_log::TRIAL_TOPIC.into(),
+            stamp_ns: motm_bus::monotonic_now_ns(),
+            payload: Payload::Json(serde_json::to_value(trial).map_err(|e| e.to_string())?),
+        })?;
+    }
     let bus = Bus::open(PROCESS).map_err(|e| e.to_string())?;
     let mut taps = fixed_taps();
+    // The replay log must hold every sample from the first: the logger creates the graph's
+    // services itself, before the stack starts (`motm run` waits for its heartbeat, which
+    // appears after this).
+    let created: Vec<bool> = taps
+        .iter()
+        .map(|tap| config.replay && is_graph_service(tap.counts().0))
+        .collect();
+    for (tap, &create) in taps.iter_mut().zip(&created) {
+        tap.attach(&bus, create);
+    }
+    // Reading never waits for the disk: a writer thread owns the file and the live view, and
+    // this loop hands it each cycle's records. Its queue holds `WRITER_QUEUE_CYCLES` cycles;
+    // a cycle that finds it full is dropped and counted (`records_dropped`).
+    let (batches, queue) = std::sync::mpsc::sync_channel::<Batch>(WRITER_QUEUE_CYCLES);
+    let writer = std::thread::Builder::new()
+        .name("logger-writer".into())
+        .spawn(move || write_batches(sinks, queue))
+        .map_err(|e| format!("cannot start the writer thread: {e}"))?;
     let mut records = Vec::new();
-    let mut failure = None;
+    let mut dropped = 0u64;
+    let mut writer_gone = false;
     let mut last_attach: Option<u64> = None;
     let mut discovery =
         HeartbeatDiscovery::new(&bus, motm_bus::monotonic_now_ns()).map_err(|e| e.to_string())?;
@@ -517,39 +609,95 @@ fn run(cli: &Cli, config: &LoggerConfig, recorder: &mut Recorder) -> Result<(), 
             if last_attach.is_none_or(|t| now.saturating_sub(t) >= ATTACH_PERIOD_NS) {
                 last_attach = Some(now);
                 for tap in &mut taps {
-                    tap.attach(&bus);
+                    tap.attach(&bus, false);
                 }
             }
             for tap in &mut taps {
                 if let Err(e) = tap.drain(recorder, &mut records) {
-                    eprintln!("{PROCESS}: {e}");
+                    motm_bus::say!("{PROCESS}: {e}");
                 }
             }
-            if last_stats.is_none_or(|t| now.saturating_sub(t) >= STATS_PERIOD_NS) {
-                last_stats = Some(now);
-                records.push(stats(&taps, &sinks, now));
+            let stats = last_stats
+                .is_none_or(|t| now.saturating_sub(t) >= STATS_PERIOD_NS)
+                .then(|| {
+                    last_stats = Some(now);
+                    tap_stats(&taps, recorder, dropped)
+                });
+            let batch = Batch {
+                now_ns: now,
+                records: std::mem::take(&mut records),
+                stats,
+            };
+            match batches.try_send(batch) {
+                Ok(()) => Flow::Continue,
+                Err(std::sync::mpsc::TrySendError::Full(batch)) => {
+                    dropped += batch.records.len() as u64;
+                    Flow::Continue
+                }
+                Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
+                    writer_gone = true;
+                    Flow::Stop
+                }
             }
-            let written = records
-                .drain(..)
-                .try_for_each(|record| sinks.write(&record))
-                .and_then(|()| sinks.end_cycle(now));
-            if let Err(e) = written {
-                failure = Some(e);
-                return Flow::Stop;
-            }
-            Flow::Continue
         })
         .map_err(|e| e.to_string())?;
-    if let Some(failure) = failure {
-        return Err(failure);
+    drop(batches);
+    let done = writer
+        .join()
+        .map_err(|_| "the writer thread panicked".to_string())??;
+    if writer_gone {
+        return Err("the writer stopped".into());
     }
-    let done = sinks.finish()?;
-    eprintln!("{PROCESS}: {exit:?}; {done}");
+    motm_bus::say!("{PROCESS}: {exit:?}; {done}; {dropped} records dropped");
     Ok(())
 }
 
-/// The `/logger/stats` record at `now_ns`.
-fn stats(taps: &[Box<dyn Source>], sinks: &Sinks, now_ns: u64) -> Record {
+/// Cycles of records the writer thread's queue holds (2 s at the default 250 Hz).
+const WRITER_QUEUE_CYCLES: usize = 500;
+
+/// One cycle of the reading loop, for the writer thread.
+struct Batch {
+    /// The cycle's time, ns.
+    now_ns: u64,
+    /// The cycle's records.
+    records: Vec<Record>,
+    /// The taps' part of `/logger/stats`, when one is due.
+    stats: Option<serde_json::Map<String, serde_json::Value>>,
+}
+
+/// The writer thread: every batch into the sinks, then the file's end; the closing summary.
+fn write_batches(
+    mut sinks: Sinks,
+    batches: std::sync::mpsc::Receiver<Batch>,
+) -> Result<String, String> {
+    for batch in batches {
+        for record in &batch.records {
+            sinks.write(record)?;
+        }
+        if let Some(mut stats) = batch.stats {
+            let live = sinks.live.as_ref().map(LiveSink::stats).unwrap_or_default();
+            stats.insert("records_written".into(), sinks.channels.encoded.into());
+            stats.insert("raised_stamps".into(), sinks.channels.raised_stamps.into());
+            stats.insert("live_clients".into(), live.clients.into());
+            stats.insert("live_sent_messages".into(), live.sent_messages.into());
+            stats.insert("live_dropped_messages".into(), live.dropped_messages.into());
+            sinks.write(&Record {
+                topic: topics::LOGGER_STATS.into(),
+                stamp_ns: batch.now_ns,
+                payload: Payload::Json(serde_json::Value::Object(stats)),
+            })?;
+        }
+        sinks.end_cycle(batch.now_ns)?;
+    }
+    sinks.finish()
+}
+
+/// The taps' part of the `/logger/stats` record (the writer adds its own counters).
+fn tap_stats(
+    taps: &[Box<dyn Source>],
+    recorder: &Recorder,
+    dropped: u64,
+) -> serde_json::Map<String, serde_json::Value> {
     let mut lost_by_service = serde_json::Map::new();
     let (mut received, mut lost, mut attached) = (0, 0, 0);
     for tap in taps {
@@ -561,22 +709,17 @@ fn stats(taps: &[Box<dyn Source>], sinks: &Sinks, now_ns: u64) -> Record {
             lost_by_service.insert(name.to_owned(), l.into());
         }
     }
-    let live = sinks.live.as_ref().map(LiveSink::stats).unwrap_or_default();
-    Record {
-        topic: topics::LOGGER_STATS.into(),
-        stamp_ns: now_ns,
-        payload: motm_logger::recorder::Payload::Json(json!({
-            "services_with_samples": attached,
-            "samples_received": received,
-            "samples_lost": lost,
-            "records_written": sinks.channels.encoded,
-            "raised_stamps": sinks.channels.raised_stamps,
-            "lost_by_service": lost_by_service,
-            "live_clients": live.clients,
-            "live_sent_messages": live.sent_messages,
-            "live_dropped_messages": live.dropped_messages,
-        })),
-    }
+    let mut stats = serde_json::Map::new();
+    stats.insert("services_with_samples".into(), attached.into());
+    stats.insert("samples_received".into(), received.into());
+    stats.insert("samples_lost".into(), lost.into());
+    stats.insert("records_dropped".into(), dropped.into());
+    stats.insert(
+        "bad_cycle_records".into(),
+        recorder.bad_cycle_records().into(),
+    );
+    stats.insert("lost_by_service".into(), lost_by_service.into());
+    stats
 }
 
 #[cfg(test)]
@@ -584,15 +727,18 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_fixed_taps_are_the_graphs_published_topics_and_the_swap_services() {
+    fn the_fixed_taps_are_the_graphs_published_topics_the_swap_services_and_the_cycle_records() {
         let tapped: Vec<String> = fixed_taps()
             .iter()
             .map(|tap| tap.counts().0.to_owned())
             .collect();
-        let mut expected: Vec<String> = motm_graph::published_topics()
-            .iter()
-            .map(|t| t.name.to_owned())
-            .collect();
+        // The cycle records first (see `fixed_taps`).
+        let mut expected = vec![services::REPLAY_CYCLES.to_owned()];
+        expected.extend(
+            motm_graph::published_topics()
+                .iter()
+                .map(|t| t.name.to_owned()),
+        );
         expected.extend([
             services::SUPERVISOR_SWAP_REQUEST.to_owned(),
             services::SUPERVISOR_SWAP_STATUS.to_owned(),

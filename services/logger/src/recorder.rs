@@ -89,6 +89,13 @@ pub struct LoggerConfig {
     pub writeback_bytes: u64,
     /// The live view's settings (`[live]`; used with `logger --live ADDR`).
     pub live: crate::live::LiveConfig,
+    /// Whether the file also holds the replay log ([`crate::replay_log`]): every sample's raw
+    /// bytes, unthinned, and every task cycle's record. Camera images then cost about
+    /// 7 MB/s (every 230 kB frame at 30 Hz), so it is off unless asked for (`logger
+    /// --replay`, which `motm run --mcap` passes). With it the logger creates the graph's
+    /// services itself (so it reads from the first sample) and runs at normal priority (so it
+    /// keeps up), whatever `idle_scheduling` says.
+    pub replay: bool,
 }
 
 impl Default for LoggerConfig {
@@ -105,6 +112,7 @@ impl Default for LoggerConfig {
             flush_interval_s: 1.0,
             writeback_bytes: 1024 * 1024,
             live: crate::live::LiveConfig::default(),
+            replay: false,
         }
     }
 }
@@ -116,6 +124,8 @@ pub enum Payload {
     Protobuf(fg::Schema, Vec<u8>),
     /// A JSON message (the channel's jsonschema is inferred from the first one).
     Json(Value),
+    /// A sample's raw `#[repr(C)]` bytes, for replay (file only: no viewer decodes them).
+    Raw(&'static str, Vec<u8>),
 }
 
 /// One message for the log.
@@ -202,6 +212,14 @@ pub struct Recorder {
     images_seen: u64,
     /// Stamp of the last record written per thinned topic ([`LoggerConfig::raw_rate_hz`]).
     last_raw_ns: HashMap<String, u64>,
+    /// Task names by the index a [`msgs::TaskCycle`] carries.
+    replay_tasks: Vec<&'static str>,
+    /// Topic names by the index a [`msgs::SampleRef`] carries.
+    replay_topics: Vec<&'static str>,
+    /// Cycle records dropped for an unknown index.
+    bad_cycle_records: u64,
+    /// Unix minus monotonic time, ns, for the foxglove header timestamps.
+    unix_offset_ns: i128,
     /// Every process name seen in the supervisor's table.
     supervised: BTreeSet<String>,
     /// Names first seen since the last [`Recorder::take_new_processes`].
@@ -310,7 +328,76 @@ impl Recorder {
             last_raw_ns: HashMap::new(),
             supervised: BTreeSet::new(),
             new_processes: Vec::new(),
+            replay_tasks: motm_graph::GRAPH.iter().map(|t| t.name).collect(),
+            replay_topics: motm_graph::published_topics()
+                .iter()
+                .map(|t| t.name)
+                .collect(),
+            bad_cycle_records: 0,
+            unix_offset_ns: 0,
         }
+    }
+
+    /// Moves the foxglove messages' header timestamps from `CLOCK_MONOTONIC` to Unix time by
+    /// `offset_ns` (Unix minus monotonic, taken once at start, as the log times are).
+    pub fn set_unix_offset(&mut self, offset_ns: i128) {
+        self.unix_offset_ns = offset_ns;
+    }
+
+    /// The foxglove header timestamp of monotonic `stamp_ns`: the sample's own time, in Unix
+    /// time (so it matches the record's log time).
+    fn timestamp(&self, stamp_ns: u64) -> Option<fg::Timestamp> {
+        let unix = (i128::from(stamp_ns) + self.unix_offset_ns).max(0) as u64;
+        Some(fg::Timestamp::from_ns(unix))
+    }
+
+    /// With [`LoggerConfig::replay`]: the raw bytes of `sample` of `service` on its replay
+    /// channel.
+    pub fn replay_sample<M: msgs::Message>(
+        &mut self,
+        service: &str,
+        sample: &M,
+        out: &mut Vec<Record>,
+    ) {
+        // The cycle records themselves go to the cycles channel instead.
+        if self.config.replay && service != msgs::services::REPLAY_CYCLES {
+            out.push(Record {
+                topic: crate::replay_log::raw_channel(service),
+                stamp_ns: sample.header().stamp_ns,
+                payload: Payload::Raw(M::NAME, motm_graph::replay::raw_bytes(sample)),
+            });
+        }
+    }
+
+    /// With [`LoggerConfig::replay`]: a task cycle's record on the cycles channel, its indices
+    /// turned into names (a record with an unknown index is counted and dropped, with a
+    /// message).
+    pub fn task_cycle(&mut self, sample: &msgs::TaskCycle, out: &mut Vec<Record>) {
+        if !self.config.replay {
+            return;
+        }
+        match crate::replay_log::CycleJson::from_message(
+            sample,
+            &self.replay_tasks,
+            &self.replay_topics,
+        ) {
+            Ok(json) => out.push(Record {
+                topic: crate::replay_log::CYCLES_TOPIC.into(),
+                stamp_ns: sample.header.stamp_ns,
+                payload: Payload::Json(serde_json::to_value(json).unwrap_or_default()),
+            }),
+            Err(e) => {
+                if self.bad_cycle_records == 0 {
+                    motm_bus::say!("logger: {e}");
+                }
+                self.bad_cycle_records += 1;
+            }
+        }
+    }
+
+    /// Cycle records dropped for an unknown index.
+    pub fn bad_cycle_records(&self) -> u64 {
+        self.bad_cycle_records
     }
 
     /// Whether a record on `topic` stamped `stamp_ns` is kept under
@@ -390,7 +477,7 @@ impl Recorder {
         self.target = Some(*sample);
         let stamp = sample.header.stamp_ns;
         let message = fg::PoseInFrame {
-            timestamp: None,
+            timestamp: self.timestamp(stamp),
             frame_id: frames::WORLD.into(),
             pose: Some(planar_pose(sample.position, 0.0)),
         };
@@ -423,7 +510,7 @@ impl Recorder {
             topics::TF,
             stamp,
             fg::FRAME_TRANSFORMS,
-            &self.transforms(&base, q),
+            &self.transforms(stamp, &base, q),
         ));
         let fk = self.robot.forward(&base, q);
         let mut rates = DVector::zeros(fk.jacobian.ncols());
@@ -448,7 +535,7 @@ impl Recorder {
             })),
         });
         let ee = fg::PoseInFrame {
-            timestamp: None,
+            timestamp: self.timestamp(stamp),
             frame_id: frames::WORLD.into(),
             pose: Some(pose(&fk.tool_pose)),
         };
@@ -480,7 +567,7 @@ impl Recorder {
             })
             .collect();
         let states = fg::JointStates {
-            timestamp: None,
+            timestamp: self.timestamp(sample.header.stamp_ns),
             joints,
         };
         out.push(Record::protobuf(
@@ -491,10 +578,12 @@ impl Recorder {
         ));
     }
 
-    /// World → base → each arm joint's frame (named after the joint) → tool.
-    pub fn transforms(&self, base: &BasePose, arm_q: &[f64]) -> fg::FrameTransforms {
+    /// World → base → each arm joint's frame (named after the joint) → tool, at monotonic
+    /// time `stamp_ns`.
+    pub fn transforms(&self, stamp_ns: u64, base: &BasePose, arm_q: &[f64]) -> fg::FrameTransforms {
+        let timestamp = self.timestamp(stamp_ns);
         let transform = |parent: &str, child: &str, iso: &Isometry3<f64>| fg::FrameTransform {
-            timestamp: None,
+            timestamp,
             parent_frame_id: parent.to_owned(),
             child_frame_id: child.to_owned(),
             translation: Some(vector(&iso.translation.vector)),
@@ -529,7 +618,7 @@ impl Recorder {
             return;
         }
         let image = fg::RawImage {
-            timestamp: None,
+            timestamp: self.timestamp(sample.header.stamp_ns),
             frame_id: frames::CAMERA.into(),
             width: sample.width,
             height: sample.height,
@@ -551,8 +640,9 @@ impl Recorder {
             return;
         }
         self.last_scene_ns = Some(stamp_ns);
+        let timestamp = self.timestamp(stamp_ns);
         let entity = |id: &str| fg::SceneEntity {
-            timestamp: None,
+            timestamp,
             frame_id: frames::WORLD.into(),
             id: id.into(),
             arrows: Vec::new(),
@@ -721,7 +811,7 @@ mod tests {
         let r = recorder();
         let base = BasePose::new(1.0, -0.5, 0.3);
         let q = r.robot.config.ready_pose.clone();
-        let tf = r.transforms(&base, &q);
+        let tf = r.transforms(0, &base, &q);
         // world → base, one per arm joint, → tool.
         assert_eq!(tf.transforms.len(), 2 + r.robot.arm_dof());
         assert_eq!(tf.transforms[0].parent_frame_id, frames::WORLD);
@@ -730,6 +820,62 @@ mod tests {
         let expected = r.robot.tool_pose(&base, &q);
         assert!((tool.translation.vector - expected.translation.vector).norm() < 1e-9);
         assert!(tool.rotation.angle_to(&expected.rotation) < 1e-9);
+    }
+
+    #[test]
+    fn foxglove_header_timestamps_are_the_samples_own_stamps_in_unix_time() {
+        use prost::Message as _;
+        let mut r = recorder();
+        r.set_unix_offset(1_700_000_000_000_000_000);
+        let mut odometry = msgs::BaseOdometry::zeroed();
+        odometry.header.stamp_ns = 5;
+        r.odometry(&odometry);
+        let mut state = msgs::JointState::zeroed();
+        state.joint_count = r.robot.arm_dof() as u32;
+        state.header.stamp_ns = 2_500_000_001;
+        let mut out = Vec::new();
+        r.joint_state(&state, &mut out);
+        let mut target = msgs::TargetEstimate::zeroed();
+        target.header.stamp_ns = state.header.stamp_ns;
+        r.target(&target, &mut out);
+        let expected = fg::Timestamp {
+            seconds: 1_700_000_002,
+            nanos: 500_000_001,
+        };
+        let mut checked = Vec::new();
+        for record in &out {
+            let Payload::Protobuf(schema, bytes) = &record.payload else {
+                continue;
+            };
+            let stamps: Vec<Option<fg::Timestamp>> = match schema.name {
+                "foxglove.JointStates" => {
+                    vec![fg::JointStates::decode(bytes.as_slice()).unwrap().timestamp]
+                }
+                "foxglove.PoseInFrame" => {
+                    vec![fg::PoseInFrame::decode(bytes.as_slice()).unwrap().timestamp]
+                }
+                "foxglove.FrameTransforms" => fg::FrameTransforms::decode(bytes.as_slice())
+                    .unwrap()
+                    .transforms
+                    .iter()
+                    .map(|t| t.timestamp)
+                    .collect(),
+                other => panic!("unexpected schema {other}"),
+            };
+            assert!(!stamps.is_empty());
+            for stamp in stamps {
+                assert_eq!(stamp, Some(expected), "{}", record.topic);
+            }
+            checked.push(record.topic.clone());
+        }
+        for topic in [
+            topics::JOINT_STATES,
+            topics::TF,
+            topics::EE_POSE,
+            topics::TARGET_POSE,
+        ] {
+            assert!(checked.iter().any(|t| t == topic), "{topic}: {checked:?}");
+        }
     }
 
     #[test]

@@ -34,6 +34,9 @@ enum BenchCommand {
     /// The logger's cost to the control loop: p99 cycle times over runs without and with
     /// `--mcap` (median and worst run per process, and the ratio).
     Logger(crate::bench_logger::LoggerBenchArgs),
+    /// The compute time of each task's step (median, p99 and max µs) over one in-process MotM
+    /// trial: what each hop of the chain adds to the deployed latency.
+    Tasks(TasksArgs),
     /// Echo peer of `motm bench ipc` (started by it).
     #[command(hide = true)]
     IpcEcho(crate::bench_ipc::EchoArgs),
@@ -57,12 +60,80 @@ struct QpArgs {
     json: bool,
 }
 
+/// Arguments of `motm bench tasks`.
+#[derive(Args)]
+struct TasksArgs {
+    /// Scenario file or name.
+    #[arg(long, default_value = "exp1-dynamic")]
+    scenario: String,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object: `{"tasks": [{"name", "steps", "median_us", "p99_us",
+    /// "max_us"}], ...}`.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `motm bench tasks`.
+fn run_tasks(config_dir: &Path, args: &TasksArgs) -> Result<(), String> {
+    let (robot, scenario) =
+        crate::trial::load(config_dir, &args.scenario, None).map_err(|e| e.to_string())?;
+    let config = motm_sim::runner::RunnerConfig {
+        time_steps: true,
+        ..crate::trial::runner_config(config_dir, None).map_err(|e| e.to_string())?
+    };
+    let (result, trace) = motm_sim::runner::run_trial(
+        &robot,
+        &scenario,
+        motm_sim::experiment::Method::Motm,
+        args.seed,
+        &config,
+        true,
+    )?;
+    let trace = trace.ok_or("the trial kept no trace")?;
+    let rows: Vec<_> = trace
+        .step_ns
+        .iter()
+        .filter(|(_, times)| !times.is_empty())
+        .map(|(name, times)| {
+            let mut us: Vec<f64> = times.iter().map(|&ns| ns as f64 / 1e3).collect();
+            let steps = us.len();
+            let (median, p99, max) = summarize(&mut us);
+            json!({"name": name, "steps": steps, "median_us": median, "p99_us": p99, "max_us": max})
+        })
+        .collect();
+    if args.json {
+        println!(
+            "{}",
+            json!({"scenario": scenario.name, "seed": args.seed, "success": result.success, "tasks": rows})
+        );
+    } else {
+        println!(
+            "step compute time per task, {} seed {} (one in-process trial):",
+            scenario.name, args.seed
+        );
+        for row in &rows {
+            println!(
+                "  {:<13} {:>6} steps: median {:>7.1} µs, p99 {:>7.1} µs, max {:>8.1} µs",
+                row["name"].as_str().unwrap_or(""),
+                row["steps"],
+                row["median_us"].as_f64().unwrap_or(0.0),
+                row["p99_us"].as_f64().unwrap_or(0.0),
+                row["max_us"].as_f64().unwrap_or(0.0),
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Runs `motm bench`.
 pub fn run(config_dir: &Path, args: &BenchArgs) -> Result<(), String> {
     match &args.command {
         BenchCommand::Qp(qp) => run_qp(config_dir, qp),
         BenchCommand::Ipc(ipc) => crate::bench_ipc::run(ipc),
         BenchCommand::E2e(run) => run_e2e(config_dir, run),
+        BenchCommand::Tasks(args) => run_tasks(config_dir, args),
         BenchCommand::Logger(logger) => crate::bench_logger::run(config_dir, logger),
         BenchCommand::IpcEcho(echo) => crate::bench_ipc::run_echo(echo),
     }

@@ -142,7 +142,7 @@ pub fn run(config_dir: &Path, args: &LoggerBenchArgs) -> Result<(), String> {
             };
             let (report, _) = run_stack(config_dir, &run_args, false).map_err(|e| e.to_string())?;
             if !args.json {
-                eprintln!(
+                motm_bus::say!(
                     "pair {pair} seed {seed} {}: qp-resolver p99 {:.0} µs ({})",
                     if logged {
                         "with logger   "

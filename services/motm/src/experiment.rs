@@ -144,7 +144,7 @@ pub fn run(config_dir: &Path, args: &ExperimentArgs) -> Result<(), CliError> {
         );
     } else {
         print!("{}", report::markdown(&rows, &filter));
-        eprintln!("results written to {}", args.out.display());
+        motm_bus::say!("results written to {}", args.out.display());
     }
     Ok(())
 }

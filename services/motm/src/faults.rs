@@ -14,9 +14,10 @@ use std::collections::HashMap;
 
 use motm_bus::inject::{INJECTABLE_TOPICS, Injector, Malformation, full_topic_name, open_injector};
 use motm_bus::{Bus, BusError, Latest, Qos, Subscriber};
-use motm_core::fault_schedule::{Fault, FaultKind};
+use motm_core::fault_schedule::{Fault, FaultKind, MissionEvents};
 use motm_msgs::{
-    DriverStatus, Heartbeat, SafeStop, SafeStopReason, SupervisedState, SupervisorStatus, services,
+    DriverStatus, Heartbeat, SafeStop, SafeStopReason, SimTruth, SupervisedState, SupervisorStatus,
+    services,
 };
 use serde::Serialize;
 
@@ -27,8 +28,11 @@ pub struct FaultRecord {
     pub kind: String,
     /// The service or topic hit.
     pub target: String,
-    /// Scheduled time, simulated s.
-    pub at_s: f64,
+    /// Scheduled time as given: simulated s (`4.5`) or a mission event and delay
+    /// (`grasp+0.25`).
+    pub when: String,
+    /// Simulated time the fault was due at (`None`: its event never came).
+    pub due_at_s: Option<f64>,
     /// Simulated time when the fault was injected (`None`: it never was).
     pub injected_at_s: Option<f64>,
     /// Pid signalled (kill, stop).
@@ -48,11 +52,14 @@ pub struct FaultRecord {
 /// The watchdog's safe-stops over the run.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct SafeStopReport {
-    /// Times safe-stop was raised after the stack first came up (the start-up hold, until
-    /// every control-path process is heard from, is not counted). Exact with `--fault` (the
-    /// run then watches at 500 Hz); without, `motm run` watches at 20 Hz and a raise shorter
-    /// than that period may go unseen.
+    /// Times safe-stop was raised for a fault (the start-up hold, reason `Starting`, until
+    /// every control-path process is heard from, is not a fault and is not counted). Exact
+    /// with `--fault` (the run then watches at 500 Hz); without, `motm run` watches at 20 Hz
+    /// and a raise shorter than that period may go unseen.
     pub count: u32,
+    /// Of `count`, the raises before the watchdog first cleared safe-stop (a fault while the
+    /// stack was starting).
+    pub at_startup: u32,
     /// Reason of each raise, in order.
     pub reasons: Vec<String>,
     /// Largest safe-stop latency over the hang (stop) faults, ms (`None`: none measured).
@@ -128,6 +135,24 @@ impl DriverTotals {
         self.latest.values().map(|d| d.output_violations).sum()
     }
 
+    /// Hot-standby takeovers at any driver instance: the most any one counted (each driver
+    /// follows the resolvers on its own).
+    pub fn resolver_takeovers(&self) -> u32 {
+        self.latest
+            .values()
+            .map(|d| d.resolver_takeovers)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Longest interval a hot-standby takeover made at any driver instance, ms.
+    pub fn max_takeover_interval_ms(&self) -> f64 {
+        self.latest
+            .values()
+            .map(|d| d.max_takeover_interval_ns as f64 / 1e6)
+            .fold(0.0, f64::max)
+    }
+
     /// Longest command gap at any instance, ms.
     pub fn max_command_gap_ms(&self) -> f64 {
         self.latest
@@ -144,14 +169,17 @@ pub struct FaultRunner {
     safe_stop: Subscriber<SafeStop>,
     /// Whether the watchdog has cleared safe-stop once (the stack is up).
     stack_up: bool,
+    /// Whether safe-stop is raised for a fault (not the start-up hold).
     active: bool,
-    /// Monotonic stamps of every raise after the stack came up, ns.
+    /// Monotonic stamps of every raise for a fault, ns.
     raises_ns: Vec<u64>,
-    /// Monotonic stamps of every release after the stack came up, ns.
+    /// Monotonic stamps of every release after a raise for a fault, ns.
     releases_ns: Vec<u64>,
     report: SafeStopReport,
     /// Largest simulated time seen (sim-world's clock; kept when sim-world restarts).
     sim_time: f64,
+    /// The mission events so far, from sim-world's truth.
+    events: MissionEvents,
 }
 
 /// Sends `sig` to `pid`.
@@ -186,7 +214,8 @@ impl FaultRunner {
                     record: FaultRecord {
                         kind: f.kind.name().into(),
                         target: f.target.clone(),
-                        at_s: f.at_s,
+                        when: f.when(),
+                        due_at_s: None,
                         outcome: "not_injected".into(),
                         ..FaultRecord::default()
                     },
@@ -203,6 +232,7 @@ impl FaultRunner {
             releases_ns: Vec::new(),
             report: SafeStopReport::default(),
             sim_time: 0.0,
+            events: MissionEvents::default(),
         })
     }
 
@@ -215,41 +245,51 @@ impl FaultRunner {
     fn watch_safe_stop(&mut self) {
         while let Ok(Some(sample)) = self.safe_stop.receive() {
             let stamp = sample.header.stamp_ns;
-            let active = sample.active == 1;
-            if !active && !self.stack_up {
-                self.stack_up = true;
-            } else if self.stack_up && active && !self.active {
+            let reason = SafeStopReason::try_from(sample.reason);
+            let fault = sample.active == 1 && reason != Ok(SafeStopReason::Starting);
+            if fault && !self.active {
                 self.raises_ns.push(stamp);
                 self.report.count += 1;
-                let reason = SafeStopReason::try_from(sample.reason)
-                    .map_or_else(|code| format!("code {code}"), |r| format!("{r:?}"));
+                self.report.at_startup += u32::from(!self.stack_up);
+                let reason =
+                    reason.map_or_else(|code| format!("code {code}"), |r| format!("{r:?}"));
                 self.report.reasons.push(reason);
-            } else if self.stack_up && !active && self.active {
+            } else if !fault && self.active {
                 self.releases_ns.push(stamp);
             }
-            self.active = active;
+            if sample.active == 0 {
+                self.stack_up = true;
+            }
+            self.active = fault;
         }
     }
 
-    /// One step at monotonic `now_ns` with sim-world's time `sim_time` (when known), the
+    /// One step at monotonic `now_ns` with sim-world's latest truth (when known), the
     /// supervisor's table and the heartbeat readers (process name, latest heartbeat).
     pub fn step(
         &mut self,
         now_ns: u64,
-        sim_time: Option<f64>,
+        truth: Option<&SimTruth>,
         status: Option<&SupervisorStatus>,
         heartbeats: &[(String, Latest<Heartbeat>)],
     ) {
         self.watch_safe_stop();
-        if let Some(t) = sim_time {
-            self.sim_time = self.sim_time.max(t);
+        if let Some(t) = truth {
+            self.sim_time = self.sim_time.max(t.sim_time);
+            self.events.observe(
+                t.sim_time,
+                t.gripper_opening,
+                t.held_object,
+                t.buttons_pressed,
+            );
         }
         let sim_time = self.sim_time;
         let row_of = |name: &str| {
             status.and_then(|s| s.processes().iter().find(|p| p.name() == name).copied())
         };
         for t in &mut self.tracked {
-            if t.injected_ns.is_none() && sim_time_reached(sim_time, &t.fault) {
+            t.record.due_at_s = t.fault.due_s(&self.events);
+            if t.injected_ns.is_none() && t.record.due_at_s.is_some_and(|due| sim_time >= due) {
                 t.record.injected_at_s = Some(sim_time);
                 t.injected_ns = Some(now_ns);
                 match t.fault.kind {
@@ -378,10 +418,12 @@ pub fn print_faults(faults: &[FaultRecord], safe_stops: &SafeStopReport) {
     };
     for f in faults {
         println!(
-            "fault {}:{} at {:.2} s: {}{}{}{}{}",
+            "fault {}:{}@{} at {}: {}{}{}{}{}",
             f.kind,
             f.target,
-            f.injected_at_s.unwrap_or(f.at_s),
+            f.when,
+            f.injected_at_s
+                .map_or_else(|| "-".to_string(), |t| format!("{t:.2} s")),
             f.outcome,
             figure("restart", f.restart_ms),
             figure("first heartbeat", f.first_heartbeat_ms),
@@ -389,11 +431,6 @@ pub fn print_faults(faults: &[FaultRecord], safe_stops: &SafeStopReport) {
             figure("released", f.resumed_ms),
         );
     }
-}
-
-/// Whether the simulated clock has reached the fault's time.
-fn sim_time_reached(sim_time: f64, fault: &Fault) -> bool {
-    sim_time >= fault.at_s
 }
 
 #[cfg(test)]

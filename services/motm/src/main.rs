@@ -106,7 +106,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("motm: {e}");
+            motm_bus::say!("motm: {e}");
             ExitCode::from(e.exit_code())
         }
     }

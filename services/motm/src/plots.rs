@@ -270,7 +270,7 @@ mod tests {
             objects: vec![vec![(2.0, 0.6), (2.05, 0.62)]],
             containers: vec![(3.6, 1.6)],
             cycles: Vec::new(),
-            log: None,
+            ..TrialTrace::default()
         };
         trajectories(
             &dir,

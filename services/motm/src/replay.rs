@@ -1,13 +1,11 @@
-//! `motm trial --mcap FILE` writes the replay log of an in-process MotM trial; `motm replay FILE
-//! [--task NAME] [--config FILE] [--json]` feeds its logged inputs through the same tasks
-//! (with the gains of `--config`, if given) and reports, per task, the cycles replayed and the
-//! first cycle whose output differs.
+//! `motm trial --mcap FILE` writes the replay log of an in-process MotM trial, and `motm run
+//! --mcap FILE` has the logger write one from the running stack; `motm replay FILE [--task
+//! NAME] [--config FILE] [--json]` feeds either's logged inputs through the same tasks (with
+//! the gains of `--config`, if given) and reports, per task, the cycles replayed and the first
+//! cycle whose output differs.
 //!
-//! Log format (MCAP): one channel per topic (`message_encoding` `motm-raw-v1`, schema name the
-//! payload type; each message the payload's `#[repr(C)]` bytes), one JSON channel
-//! `motm/replay/cycles` (one message per task cycle: task, cycle, time, the consumed and the
-//! produced samples as `[topic, seq, stamp_ns]`), and one JSON message on `motm/replay/trial`
-//! (scenario, seed, base speed): what replay needs to build the same tasks.
+//! The log format is [`motm_logger::replay_log`]'s: raw payload channels, one JSON record per
+//! task cycle, and the trial's description.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -15,41 +13,16 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use motm_graph::replay::RawSample;
 use motm_graph::{Consumed, CycleRecord, TopicSpec};
+use motm_logger::replay_log::{
+    CYCLES_TOPIC, CycleJson, RAW_ENCODING, SampleJson, TRIAL_TOPIC, TrialInfo, raw_channel,
+    raw_topic,
+};
 use motm_sim::experiment::TrialLog;
 use motm_sim::replay::replay_log;
-use serde::{Deserialize, Serialize};
 
 use crate::CliError;
 
-/// Channel of the cycle records.
-const CYCLES_TOPIC: &str = "motm/replay/cycles";
-/// Channel of the trial description.
-const TRIAL_TOPIC: &str = "motm/replay/trial";
-/// Message encoding of the raw payload channels.
-const RAW_ENCODING: &str = "motm-raw-v1";
-
-/// What replay needs to build the trial's tasks again.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct TrialInfo {
-    /// Scenario file.
-    pub scenario: PathBuf,
-    /// Seed.
-    pub seed: u64,
-    /// Base speed, m/s.
-    pub base_speed: f64,
-}
-
-/// A cycle record as JSON.
-#[derive(Serialize, Deserialize)]
-struct CycleJson {
-    task: String,
-    cycle: u64,
-    now_ns: u64,
-    consumed: Vec<(String, u64, u64)>,
-    produced: Vec<(String, u64, u64)>,
-}
-
-fn refs(list: &[Consumed]) -> Vec<(String, u64, u64)> {
+fn refs(list: &[Consumed]) -> Vec<SampleJson> {
     list.iter()
         .map(|c| (c.topic.to_owned(), c.seq, c.stamp_ns))
         .collect()
@@ -58,6 +31,15 @@ fn refs(list: &[Consumed]) -> Vec<(String, u64, u64)> {
 /// The graph's topic named `topic`, from `topics` (every logged topic is one of the graph's).
 fn graph_topic(topics: &[TopicSpec], topic: &str) -> Option<TopicSpec> {
     topics.iter().find(|t| t.name == topic).copied()
+}
+
+/// Reads a header field (`u64` at `offset`) of a raw sample of `topic`.
+fn header_u64(topic: &str, bytes: &[u8], offset: usize) -> Result<u64, String> {
+    bytes
+        .get(offset..offset + 8)
+        .and_then(|b| b.try_into().ok())
+        .map(u64::from_le_bytes)
+        .ok_or_else(|| format!("{topic}: a sample shorter than its header"))
 }
 
 /// Writes `log` of the trial `info` to `path`.
@@ -95,7 +77,12 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
                     .add_schema(type_name, "", &[])
                     .map_err(|e| fail(&e))?;
                 let id = writer
-                    .add_channel(schema, sample.topic, RAW_ENCODING, &no_metadata)
+                    .add_channel(
+                        schema,
+                        &raw_channel(sample.topic),
+                        RAW_ENCODING,
+                        &no_metadata,
+                    )
                     .map_err(|e| fail(&e))?;
                 channels.insert(sample.topic, id);
                 id
@@ -111,8 +98,10 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
     for (i, record) in log.cycles.iter().enumerate() {
         let json = serde_json::to_vec(&CycleJson {
             task: record.task.to_owned(),
+            pid: 0,
             cycle: record.cycle,
             now_ns: record.now_ns,
+            truncated: false,
             consumed: refs(&record.consumed),
             produced: refs(&record.produced),
         })
@@ -125,26 +114,42 @@ pub fn write_log(path: &Path, info: &TrialInfo, log: &TrialLog) -> Result<(), St
     Ok(())
 }
 
-/// Reads a log written by [`write_log`].
-pub fn read_log(path: &Path) -> Result<(TrialInfo, TrialLog), String> {
+/// A replay log read back: the trial, its samples and cycle records, and the process of each
+/// cycle record (0 for every cycle of an in-process log).
+pub struct ReadLog {
+    /// The trial.
+    pub info: TrialInfo,
+    /// Samples and cycle records.
+    pub log: TrialLog,
+    /// The pid of each of `log.cycles`.
+    pub pids: Vec<u32>,
+    /// Cycle records that lost samples (more than a record holds).
+    pub truncated: u64,
+}
+
+/// Reads a replay log: written by [`write_log`] (`motm trial --mcap`) or by the logger of a
+/// running stack (`motm run --mcap`).
+pub fn read_log(path: &Path) -> Result<ReadLog, String> {
     let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let bytes = std::fs::read(path).map_err(|e| fail(&e))?;
     let topics = motm_graph::published_topics();
     let static_topic = |topic: &str| graph_topic(&topics, topic).map(|t| t.name);
     let mut info = None;
     let mut log = TrialLog::default();
+    let mut pids = Vec::new();
+    let mut truncated = 0;
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| fail(&e))?;
     for message in stream {
         let message = message.map_err(|e| fail(&e))?;
-        let topic = message.channel.topic.as_str();
-        if topic == TRIAL_TOPIC {
+        let channel = message.channel.topic.as_str();
+        if channel == TRIAL_TOPIC {
             info = Some(serde_json::from_slice(&message.data).map_err(|e| fail(&e))?);
-        } else if topic == CYCLES_TOPIC {
+        } else if channel == CYCLES_TOPIC {
             let c: CycleJson = serde_json::from_slice(&message.data).map_err(|e| fail(&e))?;
             let task = motm_graph::task(&c.task)
                 .ok_or_else(|| fail(&format!("cycle record of unknown task '{}'", c.task)))?
                 .name;
-            let list = |refs: Vec<(String, u64, u64)>| -> Result<Vec<Consumed>, String> {
+            let list = |refs: Vec<SampleJson>| -> Result<Vec<Consumed>, String> {
                 refs.into_iter()
                     .map(|(topic, seq, stamp_ns)| {
                         Ok(Consumed {
@@ -156,6 +161,8 @@ pub fn read_log(path: &Path) -> Result<(TrialInfo, TrialLog), String> {
                     })
                     .collect()
             };
+            truncated += u64::from(c.truncated);
+            pids.push(c.pid);
             log.cycles.push(CycleRecord {
                 task,
                 cycle: c.cycle,
@@ -164,25 +171,28 @@ pub fn read_log(path: &Path) -> Result<(TrialInfo, TrialLog), String> {
                 produced: list(c.produced)?,
             });
         } else if message.channel.message_encoding == RAW_ENCODING {
-            let topic =
-                static_topic(topic).ok_or_else(|| fail(&format!("unknown topic '{topic}'")))?;
-            let seq = u64::from_le_bytes(
-                message
-                    .data
-                    .get(8..16)
-                    .and_then(|b| b.try_into().ok())
-                    .ok_or_else(|| fail(&format!("{topic}: a sample shorter than its header")))?,
-            );
+            // Samples of services outside the graph (heartbeats, swap requests) feed no task.
+            let Some(topic) = static_topic(raw_topic(channel).unwrap_or(channel)) else {
+                continue;
+            };
+            let data = &message.data;
             log.samples.push(RawSample {
                 topic,
-                seq,
-                stamp_ns: message.log_time,
-                bytes: message.data.to_vec(),
+                seq: header_u64(topic, data, 8).map_err(|e| fail(&e))?,
+                stamp_ns: header_u64(topic, data, 0).map_err(|e| fail(&e))?,
+                bytes: data.to_vec(),
             });
         }
     }
-    let info = info.ok_or_else(|| fail(&"no trial description: not a `motm trial --mcap` log"))?;
-    Ok((info, log))
+    let info = info.ok_or_else(|| {
+        fail(&"no trial description: not a replay log (`motm trial --mcap`, `motm run --mcap`)")
+    })?;
+    Ok(ReadLog {
+        info,
+        log,
+        pids,
+        truncated,
+    })
 }
 
 /// Arguments of `motm replay`.
@@ -204,7 +214,15 @@ pub struct ReplayArgs {
 
 /// `motm replay`.
 pub fn run(config_dir: &Path, args: &ReplayArgs) -> Result<(), CliError> {
-    let (info, log) = read_log(&args.log).map_err(CliError::BadInput)?;
+    let ReadLog {
+        info,
+        log,
+        pids,
+        truncated,
+    } = read_log(&args.log).map_err(CliError::BadInput)?;
+    if truncated > 0 {
+        motm_bus::say!("motm replay: {truncated} cycle records lost samples that did not fit");
+    }
     let scenario_arg = info.scenario.to_string_lossy().into_owned();
     let (robot, scenario) = crate::trial::load(config_dir, &scenario_arg, Some(info.base_speed))?;
     // The gains to replay with: `--config`, else the ones the trial ran with by default.
@@ -215,6 +233,7 @@ pub fn run(config_dir: &Path, args: &ReplayArgs) -> Result<(), CliError> {
         info.seed,
         &config,
         &log,
+        &pids,
         args.task.as_deref(),
     )
     .map_err(CliError::BadInput)?;

@@ -35,23 +35,24 @@ pub struct RunArgs {
     #[arg(long)]
     pub scenario: Option<String>,
     /// Base speed v_F, m/s (default: the scenario's `base_speed`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub base_speed: Option<f64>,
     /// Control rate, Hz (default: the stack config's `control_rate_hz`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub rate: Option<f64>,
     /// RNG seed (default: the stack config's `seed`).
     #[arg(long)]
     pub seed: Option<u64>,
     /// Give up after this much wall-clock time, s (default: twice the scenario's time limit).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub timeout: Option<f64>,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
-    /// Inject a fault (repeatable): `kill:SERVICE@SECONDS`, `stop:SERVICE@SECONDS+DURATION`
-    /// (SIGSTOP, then SIGCONT after DURATION) or `nan:TOPIC@SECONDS` (one NaN sample);
-    /// SECONDS of simulated time.
+    /// Inject a fault (repeatable): `kill:SERVICE@WHEN`, `stop:SERVICE@WHEN+DURATION`
+    /// (SIGSTOP, then SIGCONT after DURATION) or `nan:TOPIC@WHEN` (one NaN sample). WHEN is
+    /// SECONDS of simulated time, or a mission event and a delay: `grasp|place|press[#N][+SECONDS]`
+    /// (`kill:qp-resolver@grasp+0.25`: a quarter second into the first grasp closure).
     #[arg(long = "fault", value_name = "FAULT")]
     pub faults: Vec<String>,
     /// Hot-swap a controller during the run: `PROCESS:VARIANT@SECONDS` (wall-clock seconds
@@ -71,6 +72,21 @@ pub struct RunArgs {
         default_missing_value = crate::run_mcap::DEFAULT_LIVE_ADDR
     )]
     pub live: Option<std::net::SocketAddr>,
+    /// The robot hardware: `sim` (the drivers' sim backends on sim-world), or `fake` (the
+    /// stack config's `fake_hardware` stack: fake robots speaking the real protocols on
+    /// loopback over sim-world's physics, the drivers on their real backends).
+    #[arg(long, value_enum, default_value_t = Hardware::Sim)]
+    pub hardware: Hardware,
+}
+
+/// What the drivers drive in `motm run`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Hardware {
+    /// sim-world's hardware topics.
+    Sim,
+    /// Fake robots on loopback sockets, over sim-world's physics.
+    Fake,
 }
 
 impl Default for RunArgs {
@@ -121,6 +137,19 @@ pub struct RunReport {
     pub output_violations: u64,
     /// Longest gap between consecutive commands at a driver, ms.
     pub max_command_gap_ms: f64,
+    /// Times a driver turned from the QP resolver it followed to the other instance (the
+    /// primary's hot standby, or back), the most at any driver.
+    pub resolver_takeovers: u32,
+    /// Longest interval between the commands a driver took across a takeover, ms: about a
+    /// control period plus the driver's wait for the instance it followed.
+    pub max_takeover_interval_ms: f64,
+    /// What the drivers drove: `sim`, or `fake` (the stack has fake robots).
+    pub hardware: Hardware,
+    /// The `--backend` of each driver.
+    pub backends: std::collections::BTreeMap<String, String>,
+    /// Commands beyond a limit that the fake robots saw (every instance of each; 0 without
+    /// fake robots).
+    pub fake_robot_violations: u64,
     /// The run's iceoryx2 prefix.
     pub ipc_prefix: String,
     /// Files of the prefix left in /dev/shm or iceoryx2's folder after the run (must be 0).
@@ -147,9 +176,13 @@ pub struct Latencies {
 }
 
 impl Latencies {
-    /// Takes in one QP status.
+    /// Takes in one QP status: its command was sent no later than the status
+    /// (`published_ns`; the cycle's stamp from a resolver that does not fill it in).
     pub fn record(&mut self, status: &QpStatus) {
-        let stamp = status.header.stamp_ns;
+        let stamp = match status.published_ns {
+            0 => status.header.stamp_ns,
+            sent => sent,
+        };
         if status.image_stamp_ns > 0 {
             self.exposure_us
                 .push(stamp.saturating_sub(status.image_stamp_ns) as f64 / 1e3);
@@ -337,12 +370,12 @@ fn ensure_binaries(stack: &StackConfig) -> Result<PathBuf, CliError> {
     };
     let packages: Vec<String> = missing.iter().map(|n| package_of(n)).collect();
     if let Some(cargo) = std::env::var_os("CARGO") {
-        eprintln!(
+        motm_bus::say!(
             "motm run: building the missing service binaries ({}) with cargo",
             missing.join(", ")
         );
         if let Err(e) = binaries::cargo_build(Path::new(&cargo), &dir, &packages) {
-            eprintln!("motm run: {e}");
+            motm_bus::say!("motm run: {e}");
         }
     }
     let still = binaries::missing(&dir, names.iter().map(String::as_str));
@@ -401,8 +434,31 @@ pub fn run_stack(
     measure_latency: bool,
 ) -> Result<(RunReport, Latencies), CliError> {
     let bad = |e: String| CliError::BadInput(e);
-    let stack_path = StackConfig::resolve(config_dir, &args.config);
-    let stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
+    let stack_error = |flag: &str, e: motm_core::ModelError| {
+        bad(match e {
+            // A file that is not there is the flag's fault; a bad key is the file's.
+            motm_core::ModelError::Io { .. } => format!("{flag}: {e}"),
+            e => e.to_string(),
+        })
+    };
+    let mut stack_path = StackConfig::resolve(config_dir, &args.config);
+    let mut stack = StackConfig::from_file(&stack_path)
+        .map_err(|e| stack_error(&format!("--config {}", args.config), e))?;
+    if args.hardware == Hardware::Fake {
+        let fake = stack.fake_hardware.clone().ok_or_else(|| {
+            bad(format!(
+                "--hardware fake: the stack config {} names no fake_hardware stack",
+                stack_path.display()
+            ))
+        })?;
+        stack_path = StackConfig::resolve(config_dir, &fake);
+        stack = StackConfig::from_file(&stack_path).map_err(|e| bad(e.to_string()))?;
+    }
+    let hardware = if stack.stand_ins().next().is_some() {
+        Hardware::Fake
+    } else {
+        Hardware::Sim
+    };
     let scenario_path = motm_sim::scenario_path(
         config_dir,
         args.scenario.as_deref().unwrap_or(&stack.scenario),
@@ -454,11 +510,19 @@ pub fn run_stack(
     };
     ipc.iceoryx2().map_err(|e| bad(e.to_string()))?;
     let registry = registry_dir().join(&ipc.prefix);
+    let fake_reports = std::env::temp_dir().join(format!("motm-fake-robots-{}", ipc.prefix));
+    let _ = std::fs::remove_dir_all(&fake_reports);
+    std::fs::create_dir_all(&fake_reports)
+        .map_err(|e| CliError::Failed(format!("cannot create {}: {e}", fake_reports.display())))?;
     let _ = std::fs::create_dir_all(registry_dir());
     let _ = std::fs::write(&registry, format!("{}\n", std::process::id()));
-    eprintln!(
+    motm_bus::say!(
         "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`)",
-        scenario.name, scenario.base_speed, rate, ipc.prefix, ipc.prefix
+        scenario.name,
+        scenario.base_speed,
+        rate,
+        ipc.prefix,
+        ipc.prefix
     );
 
     let wall = Instant::now();
@@ -478,7 +542,8 @@ pub fn run_stack(
         .arg(rate.to_string())
         .arg("--bin-dir")
         .arg(&bin_dir)
-        .env(motm_bus::PREFIX_ENV, &ipc.prefix);
+        .env(motm_bus::PREFIX_ENV, &ipc.prefix)
+        .env(motm_graph::STAND_IN_REPORT_DIR_ENV, &fake_reports);
     crate::run_mcap::exit_with_parent(&mut command);
     let with_logger = logger_outputs.any();
     let logger = if with_logger {
@@ -486,13 +551,22 @@ pub fn run_stack(
             &bin_dir,
             &ipc.prefix,
             logger_outputs,
-            config_dir,
-            &stack.robot,
-            &scenario_path,
+            crate::run_mcap::LoggedRun {
+                config_dir,
+                robot: &stack.robot,
+                scenario: &scenario_path,
+                seed: args.seed.unwrap_or(stack.seed),
+                base_speed: scenario.base_speed,
+            },
         )?)
     } else {
         None
     };
+    if args.mcap.is_some() {
+        // The replay log holds every sample from the first only if the logger's taps exist
+        // before the stack starts.
+        wait_for_logger(&ipc, LOGGER_START_TIMEOUT);
+    }
     let mut supervisor = command
         .spawn()
         .map_err(|e| CliError::Failed(format!("cannot start the supervisor: {e}")))?;
@@ -524,7 +598,7 @@ pub fn run_stack(
             watch.update();
             fault_runner.step(
                 cycle.now_ns,
-                watch.truth.get().map(|t| t.sim_time),
+                watch.truth.get(),
                 watch.status.get(),
                 &watch.heartbeats,
             );
@@ -532,12 +606,13 @@ pub fn run_stack(
             for (at_s, client) in &mut swaps {
                 if !client.sent() && elapsed >= *at_s {
                     let plan = client.report();
-                    eprintln!(
+                    motm_bus::say!(
                         "motm run: requesting the swap of {} to {} at {elapsed:.2} s",
-                        plan.process, plan.variant
+                        plan.process,
+                        plan.variant
                     );
                     if let Err(e) = client.send(elapsed) {
-                        eprintln!("motm run: swap request failed: {e}");
+                        motm_bus::say!("motm run: swap request failed: {e}");
                     }
                 }
                 client.update();
@@ -583,11 +658,14 @@ pub fn run_stack(
     let _ = unsafe { motm_bus::remove_domain(&ipc) };
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
+    let fake_robot_violations = fake_robot_violations(&fake_reports);
+    let _ = std::fs::remove_dir_all(&fake_reports);
+    let fake_robot_violations = fake_robot_violations.map_err(CliError::Failed)?;
     let (trial, latencies, processes, drivers, faults_injected, safe_stops, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
     logger_exit.transpose()?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
-        eprintln!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
+        motm_bus::say!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }
     let report = RunReport {
         trial,
@@ -598,6 +676,11 @@ pub fn run_stack(
         limit_violations: drivers.limit_violations(),
         output_violations: drivers.output_violations(),
         max_command_gap_ms: drivers.max_command_gap_ms(),
+        resolver_takeovers: drivers.resolver_takeovers(),
+        max_takeover_interval_ms: drivers.max_takeover_interval_ms(),
+        hardware,
+        backends: stack.driver_backends().into_iter().collect(),
+        fake_robot_violations,
         ipc_prefix: ipc.prefix.clone(),
         stale_shm_entries: stale,
         safe_stops,
@@ -605,6 +688,27 @@ pub fn run_stack(
         swaps,
     };
     Ok((report, latencies))
+}
+
+/// The sum of `violations_total` over the fake robots' count files in `dir` (see
+/// [`motm_graph::STAND_IN_REPORT_DIR_ENV`]); a file that does not parse is an error naming it.
+fn fake_robot_violations(dir: &Path) -> Result<u64, String> {
+    let mut total = 0;
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.extension().is_none_or(|e| e != "json") {
+            continue;
+        }
+        let text =
+            std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let value: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        total += value["violations_total"]
+            .as_u64()
+            .ok_or_else(|| format!("{}: no violations_total", path.display()))?;
+    }
+    Ok(total)
 }
 
 /// `motm run`.
@@ -666,6 +770,17 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
         report.output_violations,
         report.max_command_gap_ms
     );
+    let backends: Vec<String> = report
+        .backends
+        .iter()
+        .map(|(driver, backend)| format!("{driver} {backend}"))
+        .collect();
+    println!(
+        "hardware {:?} ({}); limit violations seen by the fake robots {}",
+        report.hardware,
+        backends.join(", "),
+        report.fake_robot_violations
+    );
     println!(
         "{:<14} {:>8} {:>8} {:>9} {:>8} {:>10}",
         "process", "pid", "restarts", "cycles", "misses", "p99 µs"
@@ -691,6 +806,26 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
         );
     }
     Ok(())
+}
+
+/// Longest wait for the logger's taps before the stack starts anyway.
+const LOGGER_START_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Waits until the logger's heartbeat service exists (it is created after the logger's taps),
+/// at most `timeout`; a warning when it does not appear.
+fn wait_for_logger(ipc: &IpcConfig, timeout: Duration) {
+    let heartbeat = motm_msgs::services::heartbeat("logger");
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        if ipc.service_exists(&heartbeat).unwrap_or(false) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    motm_bus::say!(
+        "motm run: the logger did not start within {} s; its log may miss the first samples",
+        timeout.as_secs()
+    );
 }
 
 #[cfg(test)]

@@ -67,44 +67,62 @@ impl LoggerOutputs<'_> {
     }
 }
 
+/// The run the logger logs: what it draws the scene from and what the replay log records.
+#[derive(Debug, Clone, Copy)]
+pub struct LoggedRun<'a> {
+    /// Folder holding robots/ and scenarios/.
+    pub config_dir: &'a Path,
+    /// Robot name.
+    pub robot: &'a str,
+    /// Scenario file.
+    pub scenario: &'a Path,
+    /// Seed.
+    pub seed: u64,
+    /// Base speed, m/s.
+    pub base_speed: f64,
+}
+
 /// The running logger.
 pub struct LoggerProcess {
     child: Child,
 }
 
 impl LoggerProcess {
-    /// Starts `logger [--out FILE] [--live ADDR]` from `bin_dir` on iceoryx2 prefix `prefix`
-    /// (building it with `$CARGO` when it is missing and `motm` runs through Cargo); the
-    /// outputs were checked with [`LoggerOutputs::check`].
+    /// Starts `logger [--out FILE --replay] [--live ADDR]` from `bin_dir` on iceoryx2 prefix
+    /// `prefix` (building it with `$CARGO` when it is missing and `motm` runs through Cargo);
+    /// the outputs were checked with [`LoggerOutputs::check`]. A file also holds the replay
+    /// log, so that `motm replay FILE` can feed the run's task cycles again.
     pub fn start(
         bin_dir: &Path,
         prefix: &str,
         outputs: LoggerOutputs,
-        config_dir: &Path,
-        robot: &str,
-        scenario: &Path,
+        run: LoggedRun,
     ) -> Result<Self, CliError> {
         if !binaries::missing(bin_dir, [LOGGER]).is_empty()
             && let Some(cargo) = std::env::var_os("CARGO")
             && let Err(e) =
                 binaries::cargo_build(Path::new(&cargo), bin_dir, &["motm-logger".to_string()])
         {
-            eprintln!("motm run: {e}");
+            motm_bus::say!("motm run: {e}");
         }
         let mut command = Command::new(binaries::binary_path(bin_dir, LOGGER));
         if let Some(out) = outputs.mcap {
-            command.arg("--out").arg(out);
+            command.arg("--out").arg(out).arg("--replay");
         }
         if let Some(addr) = outputs.live {
             command.arg("--live").arg(addr.to_string());
         }
         command
             .arg("--config-dir")
-            .arg(config_dir)
+            .arg(run.config_dir)
             .arg("--robot")
-            .arg(robot)
+            .arg(run.robot)
             .arg("--scenario")
-            .arg(scenario)
+            .arg(run.scenario)
+            .arg("--seed")
+            .arg(run.seed.to_string())
+            .arg("--base-speed")
+            .arg(run.base_speed.to_string())
             .env(motm_bus::PREFIX_ENV, prefix);
         exit_with_parent(&mut command);
         let child = command.spawn().map_err(|e| {

@@ -59,7 +59,8 @@ fn prefix(args: &StatusArgs) -> Result<String, CliError> {
 }
 
 /// The iceoryx2 prefix of the stack to talk to: `explicit` (a `--prefix` flag), else
-/// `$MOTM_IPC_PREFIX`, else the one stack that `motm run` is running.
+/// `$MOTM_IPC_PREFIX`, else the one stack that `motm run` is running, else the deployed stack's
+/// ([`motm_bus::DEPLOYED_PREFIX`], which systemd's units set).
 pub fn stack_prefix(explicit: Option<String>) -> Result<String, CliError> {
     if let Some(p) = explicit.or_else(|| std::env::var(motm_bus::PREFIX_ENV).ok()) {
         return Ok(p);
@@ -78,9 +79,7 @@ pub fn stack_prefix(explicit: Option<String>) -> Result<String, CliError> {
         .collect();
     match live.as_slice() {
         [one] => Ok(one.clone()),
-        [] => Err(CliError::Failed(
-            "no running stack found (give --prefix or set MOTM_IPC_PREFIX)".into(),
-        )),
+        [] => Ok(motm_bus::DEPLOYED_PREFIX.to_owned()),
         many => Err(CliError::BadInput(format!(
             "several stacks are running ({}); choose one with --prefix",
             many.join(", ")

@@ -21,7 +21,7 @@ pub struct TrialArgs {
     #[arg(long, default_value = "motm")]
     pub method: Method,
     /// Base speed v_F, m/s (overrides the scenario's `base_speed`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub base_speed: Option<f64>,
     /// RNG seed.
     #[arg(long, default_value_t = 1)]
@@ -114,7 +114,7 @@ pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
             .as_mut()
             .and_then(|t| t.log.take())
             .ok_or_else(|| CliError::Failed("the trial kept no replay log".into()))?;
-        let info = crate::replay::TrialInfo {
+        let info = motm_logger::replay_log::TrialInfo {
             scenario: scenario.path.clone(),
             seed: args.seed,
             base_speed: scenario.base_speed,

@@ -144,7 +144,7 @@ fn log(events: &[TableEvent]) {
         match event {
             TableEvent::Started { name, pid, restart } => {
                 let verb = if *restart { "restarted" } else { "started" };
-                eprintln!("supervisor: {verb} {name} (pid {pid})");
+                motm_bus::say!("supervisor: {verb} {name} (pid {pid})");
             }
             TableEvent::Exited {
                 name,
@@ -152,17 +152,17 @@ fn log(events: &[TableEvent]) {
                 exit,
                 restart_in,
             } => match restart_in {
-                Some(delay) => eprintln!(
+                Some(delay) => motm_bus::say!(
                     "supervisor: {name} (pid {pid}) exited ({exit}); restart in {} ms",
                     delay.as_millis()
                 ),
-                None => eprintln!("supervisor: {name} (pid {pid}) exited ({exit})"),
+                None => motm_bus::say!("supervisor: {name} (pid {pid}) exited ({exit})"),
             },
             TableEvent::SpawnFailed { name, error } => {
-                eprintln!("supervisor: cannot start {name}: {error}");
+                motm_bus::say!("supervisor: cannot start {name}: {error}");
             }
             TableEvent::CleanupFailed { name, error } => {
-                eprintln!("supervisor: cleanup after {name}: {error}");
+                motm_bus::say!("supervisor: cleanup after {name}: {error}");
             }
         }
     }
@@ -186,9 +186,12 @@ impl Mission {
     fn cycle(&mut self, now_ns: u64) {
         self.ports.step(&mut self.task, now_ns);
         if let Some(out) = self.task.last().filter(|out| out.changed) {
-            eprintln!(
+            motm_bus::say!(
                 "supervisor: mission task {}/{} phase {:?} (tool to target {:.3} m)",
-                out.task_index, out.task_count, out.phase, out.tool_to_target
+                out.task_index,
+                out.task_count,
+                out.phase,
+                out.tool_to_target
             );
         }
     }
@@ -243,7 +246,7 @@ fn run(setup: Setup) -> Result<(), String> {
         }
         Flow::Continue
     });
-    eprintln!("supervisor: stopping the stack");
+    motm_bus::say!("supervisor: stopping the stack");
     swap.shutdown();
     log(&table.shutdown(grace));
     let _ = status.publish(table.status());
@@ -255,7 +258,7 @@ fn main() -> ExitCode {
     let mut setup = match setup(&args) {
         Ok(setup) => setup,
         Err(e) => {
-            eprintln!("supervisor: {e}");
+            motm_bus::say!("supervisor: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
@@ -271,7 +274,7 @@ fn main() -> ExitCode {
     match run(setup) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("supervisor: {e}");
+            motm_bus::say!("supervisor: {e}");
             ExitCode::FAILURE
         }
     }

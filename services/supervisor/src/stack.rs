@@ -97,6 +97,11 @@ pub struct StackConfig {
     /// The processes, in start order (stopped in reverse order).
     #[serde(rename = "process")]
     pub processes: Vec<ProcessConfig>,
+    /// The stack that `motm run --hardware fake` runs in place of this one: the same robot
+    /// with fake robots that speak the real protocols on loopback and drivers on their real
+    /// backends (a name in the config folder, or a path).
+    #[serde(default)]
+    pub fake_hardware: Option<String>,
     /// A test stack: some of the graph's processes (still in its order) or stand-ins outside
     /// it (a heartbeat probe), instead of every process of the graph.
     #[serde(default)]
@@ -148,11 +153,11 @@ impl StackConfig {
         Ok(config)
     }
 
-    /// The stack file of `name` in `config_dir` (`<config_dir>/<name>.toml`), or `name` itself
-    /// when it is an existing path.
+    /// The stack file of `name`: `name` itself when it is an existing file or reads as a
+    /// path (it ends in `.toml` or holds a `/`), else `<config_dir>/<name>.toml`.
     pub fn resolve(config_dir: &Path, name: &str) -> PathBuf {
         let direct = PathBuf::from(name);
-        if direct.is_file() {
+        if direct.is_file() || name.ends_with(".toml") || name.contains('/') {
             direct
         } else {
             config_dir.join(format!("{name}.toml"))
@@ -271,7 +276,11 @@ impl StackConfig {
             last = Some((at, process.name.as_str()));
         }
         if !self.partial
-            && let Some(missing) = graph.iter().find(|g| self.process(g).is_none())
+            && let Some(missing) = graph.iter().find(|g| {
+                // A hot standby is optional: a stack without it runs the primary alone.
+                self.process(g).is_none()
+                    && motm_graph::task(g).is_none_or(|t| t.standby_of.is_none())
+            })
         {
             return Err(ModelError::invalid(
                 &self.path,
@@ -280,6 +289,32 @@ impl StackConfig {
             ));
         }
         Ok(())
+    }
+
+    /// The `--backend` each driver of the stack is started with (`sim` when its arguments
+    /// name none), in stack order.
+    pub fn driver_backends(&self) -> Vec<(String, String)> {
+        self.processes
+            .iter()
+            .filter(|p| motm_graph::STAND_INS.iter().any(|s| s.serves == p.name))
+            .map(|p| {
+                let flag = p.args.iter().position(|a| a == "--backend");
+                let inline = p.args.iter().find_map(|a| a.strip_prefix("--backend="));
+                let backend = flag
+                    .and_then(|i| p.args.get(i + 1))
+                    .map(String::as_str)
+                    .or(inline)
+                    .unwrap_or("sim");
+                (p.name.clone(), backend.to_owned())
+            })
+            .collect()
+    }
+
+    /// The processes that stand in for a robot's hardware (fake robots).
+    pub fn stand_ins(&self) -> impl Iterator<Item = &ProcessConfig> {
+        self.processes
+            .iter()
+            .filter(|p| motm_graph::stand_in(&p.name).is_some())
     }
 
     /// The controllers file, in `config_dir` unless `controllers` is absolute.
@@ -399,13 +434,51 @@ mod tests {
     }
 
     #[test]
+    fn the_fake_hardware_stack_has_fake_robots_and_real_backends() {
+        let frankie = StackConfig::from_file(&config_dir().join("frankie.toml")).unwrap();
+        assert_eq!(
+            frankie.driver_backends(),
+            [
+                ("panda-driver".to_string(), "sim".to_string()),
+                ("ld60-driver".to_string(), "sim".to_string())
+            ]
+        );
+        assert_eq!(frankie.stand_ins().count(), 0);
+        let fake_name = frankie.fake_hardware.as_deref().expect("frankie names one");
+        let fake = StackConfig::from_file(&StackConfig::resolve(&config_dir(), fake_name)).unwrap();
+        assert_eq!(fake.robot, frankie.robot);
+        assert!(fake.fake_hardware.is_none());
+        let stand_ins: Vec<&str> = fake.stand_ins().map(|p| p.name.as_str()).collect();
+        assert_eq!(stand_ins, ["fake-panda", "fake-ld60"]);
+        assert_eq!(
+            fake.driver_backends(),
+            [
+                ("panda-driver".to_string(), "fci".to_string()),
+                ("ld60-driver".to_string(), "arnl".to_string())
+            ]
+        );
+        // The other processes run as in the sim stack.
+        for p in &frankie.processes {
+            if !p.name.ends_with("-driver") {
+                assert_eq!(fake.process(&p.name), Some(p), "{}", p.name);
+            }
+        }
+    }
+
+    #[test]
     fn every_shipped_stack_loads_and_names_the_graphs_processes_in_order() {
         let stacks = shipped_stacks();
         let names: Vec<String> = stacks
             .iter()
             .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
             .collect();
-        for robot in ["frankie", "fetch", "husky_ur5", "frankie_arnl"] {
+        for robot in [
+            "frankie",
+            "fetch",
+            "husky_ur5",
+            "frankie_arnl",
+            "frankie_fake",
+        ] {
             assert!(names.iter().any(|n| n == robot), "{robot}: {names:?}");
         }
         let graph: Vec<&str> = motm_graph::processes().map(|t| t.name).collect();

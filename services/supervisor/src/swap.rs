@@ -30,7 +30,7 @@ use motm_bus::{Bus, BusError, IpcConfig, Publisher, Qos, Stamp, Subscriber, mono
 use motm_core::final_phase::FinalPhaseKind;
 use motm_core::hot_swap::{
     HotSwap, HotSwapConfig, SwapAction, SwapFailure, SwapInput, command_gap, controller_id_of,
-    flag_value, flip_time, steady, swap_args,
+    flag_value, flip_is_timely, flip_time, steady, swap_args,
 };
 use motm_msgs::{
     ActiveController, ControllerVariant, GripperCommand, Heartbeat, Message, ProcessState,
@@ -45,8 +45,9 @@ use crate::process_table::{ProcessTable, child_command, signal};
 /// arguments name none.
 pub const DEFAULT_CONTROLLER_ID: u32 = 1;
 
-/// Attempts at timing the flip while both controllers are on time (see [`SwapDriver::flip`]).
-const FLIP_TRIES: usize = 4;
+/// Attempts at timing the flip while both controllers are on time (see [`SwapDriver::flip`]);
+/// each waits less than a period, so the flip comes within 20 periods.
+const FLIP_TRIES: usize = 20;
 
 /// Most command stamps kept per controller during one swap (a minute at 200 Hz, two streams).
 const MAX_STAMPS: usize = 24_000;
@@ -305,7 +306,7 @@ impl SwapDriver {
         let child = match child_command(&spec).spawn() {
             Ok(child) => child,
             Err(e) => {
-                eprintln!(
+                motm_bus::say!(
                     "supervisor: swap {}: cannot start {}: {e}",
                     request.request_id,
                     spec.program.display()
@@ -315,7 +316,7 @@ impl SwapDriver {
             }
         };
         report.new_pid = child.id();
-        eprintln!(
+        motm_bus::say!(
             "supervisor: swap {}: started {name} {} (pid {}, controller id {new_id}) beside pid {old_pid} (controller id {old_id})",
             request.request_id,
             kind.name(),
@@ -352,14 +353,12 @@ impl SwapDriver {
             }
             wait_until(flip_time(now, old, new, self.period_ns));
             self.take_samples();
-            // Flip only while both controllers are on time: at the chosen moment the old one
-            // commanded less than half a period ago and the new one less than a period ago
-            // (both with half a period to spare). A controller silent for longer is in a late
-            // cycle, which would make the gap: wait for its command and time the flip again.
-            let now = monotonic_now_ns();
+            // Flip only while both controllers are on time: at the chosen moment the gap the
+            // flip would make leaves a quarter period to spare ([`flip_is_timely`]). A
+            // controller silent for longer is in a late cycle, or the wait overslept: wait for
+            // the next commands and time the flip again.
             if let Some((old, new)) = self.last_stamps()
-                && now - old.min(now) < self.period_ns
-                && now - new.min(now) < self.period_ns + self.period_ns / 2
+                && flip_is_timely(monotonic_now_ns(), old, new, self.period_ns)
             {
                 break;
             }
@@ -405,7 +404,7 @@ impl SwapDriver {
         } else {
             0.0
         };
-        eprintln!(
+        motm_bus::say!(
             "supervisor: swap {}: controller id {} active (heartbeat after {:.0} ms, first command after {:.0} ms); stopping pid {}",
             r.request_id,
             new_id,
@@ -433,7 +432,7 @@ impl SwapDriver {
             Some(gap) => {
                 r.command_gap_ns = gap.gap_ns;
                 r.stamp_gap_ns = gap.stamp_gap_ns;
-                eprintln!(
+                motm_bus::say!(
                     "supervisor: swap {}: done; command gap {:.2} ms (raw stamps {:.2} ms, {} old and {} new commands around the flip)",
                     r.request_id,
                     gap.gap_ns as f64 / 1e6,
@@ -442,7 +441,7 @@ impl SwapDriver {
                     gap.new_samples
                 );
             }
-            None => eprintln!(
+            None => motm_bus::say!(
                 "supervisor: swap {}: done; no command stream around the flip to measure",
                 r.request_id
             ),
@@ -464,9 +463,10 @@ impl SwapDriver {
             SwapFailure::NoCommand => SwapFailureCode::NoCommand,
             SwapFailure::NewExited => SwapFailureCode::NewExited,
         };
-        eprintln!(
+        motm_bus::say!(
             "supervisor: swap {}: failed ({code:?}); controller id {} stays active",
-            current.report.request_id, current.report.old_controller_id
+            current.report.request_id,
+            current.report.old_controller_id
         );
         current.report.stage = SwapStageCode::Failed.into();
         current.report.failure = code.into();
@@ -475,7 +475,7 @@ impl SwapDriver {
 
     /// Answers `request` with a failure before anything started.
     fn reject(&mut self, request: &SwapRequest, code: SwapFailureCode, old_pid: u32, old_id: u32) {
-        eprintln!(
+        motm_bus::say!(
             "supervisor: swap {}: refused ({code:?})",
             request.request_id
         );
@@ -496,7 +496,7 @@ impl SwapDriver {
         m.variant = variant.into();
         let stamp = at.map_or(Stamp::Now, Stamp::At);
         if let Err(e) = self.active.publish_stamped(stamp, m) {
-            eprintln!("supervisor: cannot publish the active controller: {e}");
+            motm_bus::say!("supervisor: cannot publish the active controller: {e}");
         }
         self.active_id = Some(id);
     }
@@ -519,13 +519,13 @@ impl SwapDriver {
         let grace = self.grace;
         self.retiring.retain_mut(|r| {
             if let Ok(Some(status)) = r.child.try_wait() {
-                eprintln!("supervisor: retired pid {} exited ({status})", r.child.id());
+                motm_bus::say!("supervisor: retired pid {} exited ({status})", r.child.id());
                 return false;
             }
             if r.since.elapsed() > grace {
                 let _ = r.child.kill();
                 let _ = r.child.wait();
-                eprintln!("supervisor: retired pid {} killed", r.child.id());
+                motm_bus::say!("supervisor: retired pid {} killed", r.child.id());
                 return false;
             }
             true

@@ -1,7 +1,8 @@
 //! `watchdog`: watches the heartbeats of the stack's control-path processes and the two
 //! command streams of the QP resolver, and publishes `SAFETY_SAFE_STOP` every cycle: raised
 //! while any of them is stale or a process reports new deadline misses (the decision is
-//! [`motm_core::watchdog::Watchdog`]), cleared when all is well again.
+//! [`motm_core::watchdog::Watchdog`]), cleared when all is well again. A task and its hot
+//! standby (the QP resolver's) count as one redundant source.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -80,6 +81,7 @@ fn describe(fault: SafetyFault, names: &[String]) -> (SafeStopReason, String) {
         SafetyFault::HeartbeatLost(i) => (SafeStopReason::HeartbeatLost, i),
         SafetyFault::StaleCommand(i) => (SafeStopReason::StaleCommand, i),
         SafetyFault::DeadlineMiss(i) => (SafeStopReason::DeadlineMiss, i),
+        SafetyFault::Starting(i) => (SafeStopReason::Starting, i),
     };
     (reason, names.get(index).cloned().unwrap_or_default())
 }
@@ -106,6 +108,17 @@ fn run(args: &Args, watched: Watched) -> Result<(), BusError> {
     };
     kinds.extend([command, command]);
     let mut watchdog = Watchdog::new(watched.stack.watchdog, &kinds);
+    // A task and its hot standbys are one redundant source.
+    for (index, name) in watched.heartbeats.iter().enumerate() {
+        let mut group = vec![index];
+        group.extend(
+            motm_graph::standbys_of(name)
+                .filter_map(|standby| watched.heartbeats.iter().position(|n| n == standby.name)),
+        );
+        if group.len() > 1 {
+            watchdog.redundant(&group);
+        }
+    }
     let arm_index = heartbeats.len();
 
     let mut last: Option<(SafeStopReason, String)> = None;
@@ -138,15 +151,24 @@ fn run(args: &Args, watched: Watched) -> Result<(), BusError> {
             .into();
         // A failed publish shows up downstream as a stale safe-stop stream.
         let _ = safe_stop.publish(message);
-        if verdict != last {
+        // Start-up holds change source as processes come up: only their end is worth a line.
+        let kind = |v: &Option<(SafeStopReason, String)>| v.as_ref().map(|(reason, _)| *reason);
+        let starting = kind(&verdict) == Some(SafeStopReason::Starting);
+        if verdict != last && !(starting && kind(&last) == Some(SafeStopReason::Starting)) {
             match &verdict {
-                Some((reason, source)) => {
-                    eprintln!("watchdog: safe-stop raised: {reason:?} ({source})");
+                Some((SafeStopReason::Starting, source)) => {
+                    motm_bus::say!("watchdog: holding safe-stop until {source} is up");
                 }
-                None => eprintln!("watchdog: safe-stop cleared"),
+                Some((reason, source)) => {
+                    motm_bus::say!("watchdog: safe-stop raised: {reason:?} ({source})");
+                }
+                None if kind(&last) == Some(SafeStopReason::Starting) => {
+                    motm_bus::say!("watchdog: the control path is up; safe-stop cleared");
+                }
+                None => motm_bus::say!("watchdog: safe-stop cleared"),
             }
-            last = verdict;
         }
+        last = verdict;
         Flow::Continue
     })?;
     Ok(())
@@ -157,14 +179,14 @@ fn main() -> ExitCode {
     let watched = match watched(&args) {
         Ok(w) => w,
         Err(e) => {
-            eprintln!("watchdog: {e}");
+            motm_bus::say!("watchdog: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
     match run(&args, watched) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("watchdog: {e}");
+            motm_bus::say!("watchdog: {e}");
             ExitCode::FAILURE
         }
     }

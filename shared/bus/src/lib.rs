@@ -37,9 +37,11 @@ mod heartbeat;
 pub mod inject;
 mod ports;
 mod process;
+mod say;
 mod service_loop;
 mod stats;
 mod systemd;
+pub mod termination;
 mod tick;
 
 pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
@@ -47,6 +49,7 @@ pub use clock::monotonic_now_ns;
 pub use heartbeat::HeartbeatPublisher;
 pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};
 pub use process::OwnedProcess;
+pub use say::say_line;
 pub use service_loop::{CycleContext, Flow, LoopConfig, LoopExit, ServiceLoop};
 pub use stats::{CycleStats, percentile};
 pub use systemd::SystemdNotifier;
@@ -59,6 +62,10 @@ use iceoryx2::prelude::*;
 
 /// Environment variable that sets the iceoryx2 resource prefix ([`IpcConfig::prefix`]).
 pub const PREFIX_ENV: &str = "MOTM_IPC_PREFIX";
+
+/// The iceoryx2 resource prefix of the stack that systemd runs on a robot (`deploy/`: the
+/// units set [`PREFIX_ENV`] to it); `motm status` looks there when no `motm run` is going on.
+pub const DEPLOYED_PREFIX: &str = "motm_";
 
 /// The iceoryx2 resource prefix used when [`PREFIX_ENV`] is not set (iceoryx2's own default).
 pub const DEFAULT_PREFIX: &str = "iox2_";
@@ -166,6 +173,21 @@ impl IpcConfig {
             })?;
         Ok(config)
     }
+
+    /// Whether the publish-subscribe service `name` exists under this prefix.
+    pub fn service_exists(&self, name: &str) -> Result<bool, BusError> {
+        use iceoryx2::service::Service;
+        let config = self.iceoryx2()?;
+        ipc::Service::does_exist(
+            &Bus::service_name(name)?,
+            &config,
+            iceoryx2::service::messaging_pattern::MessagingPattern::PublishSubscribe,
+        )
+        .map_err(|e| BusError::Service {
+            service: name.to_owned(),
+            detail: e.to_string(),
+        })
+    }
 }
 
 /// Environment variable naming the iceoryx2 config file every process of a stack reads (see
@@ -219,10 +241,12 @@ impl Bus {
             name: process.to_owned(),
             detail: format!("{e:?}"),
         })?;
+        termination::install();
         let node = NodeBuilder::new()
             .name(&name)
             .config(&ipc.iceoryx2()?)
-            // The service loop handles SIGINT/SIGTERM through its WaitSet.
+            // The service loop wakes on SIGINT/SIGTERM through its WaitSet and reads
+            // `termination::termination_requested`.
             .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
             .create::<ipc::Service>()
             .map_err(|e| BusError::Node {

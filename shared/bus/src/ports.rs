@@ -17,15 +17,23 @@ use crate::{Bus, BusError, BusShared, Connectable, monotonic_now_ns};
 /// create a service fixes them, later ones must ask for no more.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Qos {
-    /// Publishers allowed at once (2 leaves room for a hot-swap or restart overlap).
+    /// Publishers allowed at once (4: a task and its hot standby, each with room for a
+    /// restart or hot-swap overlap, or a fault injector).
     pub max_publishers: usize,
-    /// Subscribers allowed at once (the logger and the watchdog each take a slot).
+    /// Subscribers allowed at once (12: the graph's most-read topic, the odometry, has eight
+    /// readers, plus the logger, a tool and restart overlaps). The defaults are the same for
+    /// every topic, so that whichever process creates a service (a tool, a test) gives it
+    /// room for the whole stack.
     pub max_subscribers: usize,
     /// Samples a newly connected subscriber receives at once (the latest state).
     pub history_size: usize,
     /// Samples queued per subscriber; the oldest is overwritten when full (safe overflow), so
     /// a slow reader never blocks a publisher.
     pub subscriber_buffer: usize,
+    /// Samples queued for a tap ([`Subscriber::attach`], the logger): the service's largest
+    /// queue, deeper than a task's so that a logger that falls behind for a while still reads
+    /// every sample (each slot costs one sample of shared memory per subscriber).
+    pub tap_buffer: usize,
     /// Samples a subscriber may hold at once ([`Latest`] holds one while receiving the next).
     pub max_borrowed: usize,
     /// Whether publishers also notify a `<service>/ready` event after each sample, so readers
@@ -36,10 +44,11 @@ pub struct Qos {
 impl Default for Qos {
     fn default() -> Self {
         Self {
-            max_publishers: 2,
-            max_subscribers: 8,
+            max_publishers: 4,
+            max_subscribers: 12,
             history_size: 1,
             subscriber_buffer: 4,
+            tap_buffer: 256,
             max_borrowed: 2,
             wake_readers: false,
         }
@@ -52,6 +61,7 @@ impl Qos {
     pub fn large() -> Self {
         Self {
             subscriber_buffer: 2,
+            tap_buffer: 16,
             ..Self::default()
         }
     }
@@ -89,7 +99,7 @@ fn open_service<M: Message>(
         .max_publishers(qos.max_publishers)
         .max_subscribers(qos.max_subscribers)
         .history_size(qos.history_size)
-        .subscriber_max_buffer_size(qos.subscriber_buffer)
+        .subscriber_max_buffer_size(qos.subscriber_buffer.max(qos.tap_buffer))
         .subscriber_max_borrowed_samples(qos.max_borrowed)
         .enable_safe_overflow(true)
         .open_or_create()
@@ -149,6 +159,16 @@ impl<M: Message> Connectable for PublisherPorts<M> {
         if let Some(notifier) = &self.notifier {
             let _ = notifier.update_connections();
         }
+    }
+}
+
+/// Fills in `message`'s publication stamp ([`Message::publication_stamp_mut`]) with the
+/// monotonic time now, when it has one and it is zero.
+fn stamp_publication<M: Message>(message: &mut M) {
+    if let Some(sent) = message.publication_stamp_mut()
+        && *sent == 0
+    {
+        *sent = monotonic_now_ns();
     }
 }
 
@@ -213,6 +233,7 @@ impl<M: Message> Publisher<M> {
             .loan_uninit()
             .map_err(|e| port_error(&self.service, e))?;
         *message.header_mut() = self.header(stamp);
+        stamp_publication(&mut message);
         let sample = sample.write_payload(message);
         self.send(sample)
     }
@@ -249,6 +270,7 @@ impl<M: Message> Publisher<M> {
         };
         fill(sample.payload_mut());
         *sample.payload_mut().header_mut() = self.header(stamp);
+        stamp_publication(sample.payload_mut());
         self.send(sample)
     }
 
@@ -271,6 +293,7 @@ impl<M: Message> Publisher<M> {
             sample.assume_init()
         };
         *sample.payload_mut().header_mut() = self.header(stamp);
+        stamp_publication(sample.payload_mut());
         self.send(sample)
     }
 
@@ -397,8 +420,13 @@ impl<M: Message> Subscriber<M> {
     /// listens to the service's ready event (see [`Subscriber::listener`]).
     pub fn new(bus: &Bus, name: &str, qos: &Qos) -> Result<Self, BusError> {
         let service = open_service::<M>(bus, name, qos)?;
-        let subscriber = with_dead_node_cleanup(&service, || service.subscriber_builder().create())
-            .map_err(|e| port_error(name, e))?;
+        let subscriber = with_dead_node_cleanup(&service, || {
+            service
+                .subscriber_builder()
+                .buffer_size(qos.subscriber_buffer)
+                .create()
+        })
+        .map_err(|e| port_error(name, e))?;
         let listener = if qos.wake_readers {
             let event = open_event(bus, name)?;
             Some(
@@ -416,6 +444,29 @@ impl<M: Message> Subscriber<M> {
             SubscriberPorts {
                 subscriber,
                 listener,
+            },
+        ))
+    }
+
+    /// A tap's subscriber on service `name`, opened or created with the settings `qos` that
+    /// every process of the stack gives the service, with the service's deepest queue
+    /// ([`Qos::tap_buffer`]). A logger that must see every sample from the first one (the
+    /// replay log) creates the services this way before the stack starts.
+    pub fn tap(bus: &Bus, name: &str, qos: &Qos) -> Result<Self, BusError> {
+        let service = open_service::<M>(bus, name, qos)?;
+        let subscriber = with_dead_node_cleanup(&service, || {
+            service
+                .subscriber_builder()
+                .buffer_size(qos.subscriber_buffer.max(qos.tap_buffer))
+                .create()
+        })
+        .map_err(|e| port_error(name, e))?;
+        Ok(Self::from_ports(
+            bus,
+            name,
+            SubscriberPorts {
+                subscriber,
+                listener: None,
             },
         ))
     }

@@ -323,6 +323,10 @@ impl<'bus> ServiceLoop<'bus> {
         let period_ns = self.config.period.as_nanos() as u64;
         let mut last_cycle_ns = monotonic_now_ns();
         let result = loop {
+            // A request that arrived outside the wait does not interrupt it: checked each turn.
+            if crate::termination::termination_requested() {
+                break Ok(WaitSetRunResult::TerminationRequest);
+            }
             let now = monotonic_now_ns();
             let timeout = Duration::from_nanos((last_cycle_ns + period_ns).saturating_sub(now));
             let mut arrived = false;
@@ -336,8 +340,8 @@ impl<'bus> ServiceLoop<'bus> {
                 timeout,
             );
             match waited {
-                Ok(WaitSetRunResult::Interrupt)
-                    if !iceoryx2_bb_posix::signal::SignalHandler::termination_requested() => {}
+                Ok(WaitSetRunResult::Interrupt) if !crate::termination::termination_requested() => {
+                }
                 Ok(WaitSetRunResult::AllEventsHandled) => {}
                 other => break other,
             }
@@ -450,9 +454,25 @@ fn process_until_signalled(
     mut on_event: impl FnMut(WaitSetAttachmentId<ipc::Service>) -> CallbackProgression,
 ) -> Result<WaitSetRunResult, iceoryx2::waitset::WaitSetRunError> {
     loop {
-        match waitset.wait_and_process(&mut on_event) {
-            Ok(WaitSetRunResult::Interrupt)
-                if !iceoryx2_bb_posix::signal::SignalHandler::termination_requested() => {}
+        // A request that arrived outside the wait does not interrupt it: checked each turn.
+        if crate::termination::termination_requested() {
+            return Ok(WaitSetRunResult::TerminationRequest);
+        }
+        // A request that arrives while a callback runs does not interrupt the next wait either:
+        // each event is preceded by a look at the latch.
+        let mut terminated = false;
+        let waited = waitset.wait_and_process(|id| {
+            if crate::termination::termination_requested() {
+                terminated = true;
+                return CallbackProgression::Stop;
+            }
+            on_event(id)
+        });
+        if terminated {
+            return Ok(WaitSetRunResult::TerminationRequest);
+        }
+        match waited {
+            Ok(WaitSetRunResult::Interrupt) if !crate::termination::termination_requested() => {}
             other => return other,
         }
     }

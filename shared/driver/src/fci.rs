@@ -9,8 +9,8 @@
 //! Motions: a joint-velocity motion starts when the driver is tracking a fresh command and the
 //! robot is idle; when the driver's output has ramped to zero (stale command or safe-stop) the
 //! motion is finished, and a later fresh command starts a new one. A reflex (e.g.
-//! `communication_constraints_violation`) or a robot that is not idle holds the driver in
-//! safe-stop (status mode `SafeStop`, `hardware_ready` 0) and is printed once; only
+//! `communication_constraints_violation`) or a robot that is not idle sets the task's hardware
+//! hold (safe-stop; status mode `SafeStop`, `hardware_ready` 0) and is printed once; only
 //! `--error-recovery` (an explicit user action, once at start) sends AutomaticErrorRecovery.
 //! The systemd notifications (READY=1, WATCHDOG=1) follow completed cycles as in the standard
 //! service loop. On SIGTERM/SIGINT the motion is ramped down and finished before the driver exits; the
@@ -21,20 +21,18 @@ use std::net::IpAddr;
 use std::time::{Duration, Instant};
 
 use motm_bus::{
-    Bus, BusError, CycleStats, HeartbeatPublisher, Latest, Publisher, Qos, Subscriber,
-    SystemdNotifier, monotonic_now_ns, percentile,
+    Bus, BusError, CycleStats, HeartbeatPublisher, SystemdNotifier, monotonic_now_ns, percentile,
 };
 use motm_core::command_limiter::LimiterMode;
-use motm_core::velocity_driver::VelocityDriver;
 use motm_franka::fci::FCI_PORT;
 use motm_franka::hand::{HAND_PORT, HandClient, HandConfig};
 use motm_franka::{FciClient, FciConfig, Motion};
-use motm_msgs::{
-    ActiveController, ArmVelocityCommand, DriverMode, GripperAction, GripperCommand, GripperState,
-    JointState, Message, ProcessState, SafeStop, services,
-};
+use motm_graph::{PANDA_DRIVER, Task};
+use motm_msgs::{GripperAction, GripperState, JointState, Message, ProcessState};
+use motm_tasks::driver::ArmDriverTask;
 
-use crate::{EXIT_BAD_INPUT, EXIT_FAILED, status_message};
+use crate::hardware::{StackPorts, from_hardware};
+use crate::{EXIT_BAD_INPUT, EXIT_FAILED, connect_within};
 
 /// Flags of the `fci` backend.
 #[derive(Debug, Clone, clap::Args)]
@@ -134,48 +132,31 @@ pub fn should_finish(mode: LimiterMode, velocity: &[f64; 7]) -> bool {
     mode != LimiterMode::Tracking && velocity.iter().all(|v| *v == 0.0)
 }
 
-/// Runs the FCI driver until SIGTERM/SIGINT or a fatal connection error. `forward` decides
-/// whether a gripper command goes to the hand (active controller, no safe-stop).
+/// Runs the FCI driver until SIGTERM/SIGINT or a fatal connection error: each robot state is
+/// one cycle of `task` (the arm driver task of every backend), with the robot's `q`, `dq` and
+/// the hand's state as its `hw_*` inputs, and its `hw_*` outputs sent to the robot and hand.
+/// The task sends its status as it was built to; the driver waits up to `wait` for the
+/// robot and hand to accept the connection.
 pub fn run_fci(
     bus: &Bus,
-    mut driver: VelocityDriver,
-    status_period: Duration,
+    mut task: ArmDriverTask,
+    wait: Duration,
     args: &FciArgs,
-    forward: impl Fn(&GripperCommand, Option<&ActiveController>, bool) -> bool,
 ) -> Result<(), (u8, String)> {
     let ip = args
         .robot_ip
         .ok_or((EXIT_BAD_INPUT, "--backend fci needs --robot-ip".to_owned()))?;
-    if driver.axes() != 7 {
+    if task.axes() != 7 {
         return Err((
             EXIT_BAD_INPUT,
             format!(
                 "the FCI backend drives 7 joints, the robot has {}",
-                driver.axes()
+                task.axes()
             ),
         ));
     }
     let failed = |e: BusError| (EXIT_FAILED, e.to_string());
-    let qos = Qos::default();
-    let mut commands =
-        Subscriber::<ArmVelocityCommand>::new(bus, services::ARM_VELOCITY_COMMAND, &qos)
-            .map_err(failed)?;
-    let mut safe_stop =
-        Latest::<SafeStop>::new(bus, services::SAFETY_SAFE_STOP, &qos).map_err(failed)?;
-    let mut gripper_in =
-        Subscriber::<GripperCommand>::new(bus, services::ARM_GRIPPER_COMMAND, &qos)
-            .map_err(failed)?;
-    let mut active =
-        Latest::<ActiveController>::new(bus, services::CONTROL_ACTIVE_CONTROLLER, &qos)
-            .map_err(failed)?;
-    let mut joint_out = Publisher::<JointState>::new(bus, services::ARM_JOINT_STATE, &qos.waking())
-        .map_err(failed)?;
-    let mut gripper_out =
-        Publisher::<GripperState>::new(bus, services::ARM_GRIPPER_STATE, &qos.waking())
-            .map_err(failed)?;
-    let mut status_out =
-        Publisher::<motm_msgs::DriverStatus>::new(bus, services::ARM_DRIVER_STATUS, &qos)
-            .map_err(failed)?;
+    let mut stack = StackPorts::<ArmDriverTask>::open(bus, &PANDA_DRIVER).map_err(failed)?;
     let mut heartbeat = HeartbeatPublisher::new(bus).map_err(failed)?;
     // systemd readiness and watchdog, as the standard service loop sends them (a no-op outside
     // systemd): READY=1 after the first completed cycle, WATCHDOG=1 after completed cycles.
@@ -186,16 +167,24 @@ pub fn run_fci(
         port: args.fci_port,
         ..FciConfig::default()
     };
-    let mut client = FciClient::connect(ip, config).map_err(lost)?;
+    let mut client = connect_within(&format!("FCI {ip}:{}", args.fci_port), wait, || {
+        FciClient::connect(ip, config)
+    })
+    .map_err(|e| (EXIT_FAILED, e))?;
     let mut hand = if args.no_hand {
         None
     } else {
+        let hand_config = args.hand_config();
         Some(
-            HandClient::connect(ip, args.hand_config())
-                .map_err(|e| (EXIT_FAILED, e.to_string()))?,
+            connect_within(
+                &format!("Franka Hand {ip}:{}", args.hand_port),
+                wait,
+                || HandClient::connect(ip, hand_config),
+            )
+            .map_err(|e| (EXIT_FAILED, e))?,
         )
     };
-    eprintln!(
+    motm_bus::say!(
         "panda-driver: connected to the robot at {ip}:{} (FCI v5){}",
         args.fci_port,
         if hand.is_some() { " and its hand" } else { "" }
@@ -211,23 +200,21 @@ pub fn run_fci(
                 break;
             }
         }
-        eprintln!(
+        motm_bus::say!(
             "panda-driver: AutomaticErrorRecovery: {:?}",
             client.recovery()
         );
     }
 
-    let status_every = (status_period.as_secs_f64() * 1000.0).round().max(1.0) as u64;
     let mut latency = LatencyStats::default();
     let mut stats = CycleStats::new(2000);
-    let mut values = Vec::with_capacity(8);
-    let mut cycle = 0u64;
+    let mut hand_states = 0u64;
     let mut last_heartbeat = Instant::now();
     let mut reported_blocked = false;
     let mut stopping_for_exit = false;
     let mut exit_states = 0u32;
     loop {
-        if !stopping_for_exit && iceoryx2_bb_posix::signal::SignalHandler::termination_requested() {
+        if !stopping_for_exit && motm_bus::termination::termination_requested() {
             stopping_for_exit = true;
         }
         if stopping_for_exit {
@@ -236,41 +223,60 @@ pub fn run_fci(
                 break;
             }
         }
-        let ended = client.next_state().map_err(lost)?;
+        let ended = match client.next_state() {
+            Ok(ended) => ended,
+            // Asked to stop, and the robot went away first (a stack stopping all at once):
+            // nothing is left to ramp down.
+            Err(e) if stopping_for_exit || motm_bus::termination::termination_requested() => {
+                motm_bus::say!("panda-driver: {e} while stopping");
+                break;
+            }
+            Err(e) => return Err(lost(e)),
+        };
         let arrival = client.state_received_at().unwrap_or_else(Instant::now);
         let now_ns = monotonic_now_ns();
         if let Some(end) = ended {
-            eprintln!("panda-driver: FCI motion ended: {}", end.describe());
+            motm_bus::say!("panda-driver: FCI motion ended: {}", end.describe());
         }
-        while let Ok(Some(command)) = commands.receive() {
-            values.clear();
-            values.extend_from_slice(&command.velocity[..command.joint_count as usize]);
-            driver.receive(command.header().stamp_ns, &values);
-        }
-        safe_stop.update().ok();
+        let inputs = stack.read();
         let state = *client.state();
         // The robot takes no motion unless it is idle or moving: a reflex or a user stop holds
         // the driver in safe-stop until the robot is idle again.
         let blocked = !(state.idle() || state.joint_velocity_motion_running());
         if blocked && !reported_blocked {
             let errors: Vec<usize> = state.active_errors().collect();
-            eprintln!(
+            motm_bus::say!(
                 "panda-driver: the robot is not commandable (robot_mode {}, errors {errors:?}); safe-stop held",
                 state.robot_mode
             );
         }
         reported_blocked = blocked;
-        let stopped =
-            stopping_for_exit || blocked || safe_stop.get().is_some_and(|s| s.active == 1);
-        let mut velocity = [0.0; 7];
-        if let Some(v) = driver.step(now_ns, stopped, Some(&state.dq)) {
-            velocity.copy_from_slice(v);
+        task.set_hardware_hold(stopping_for_exit || blocked);
+        let mut joints = JointState::zeroed();
+        joints.joint_count = 7;
+        joints.position = state.q;
+        joints.velocity = state.dq;
+        inputs.hw_state = Some(from_hardware(joints, state.message_id, now_ns));
+        if let Some(hand) = &mut hand
+            && let Some(s) = hand.poll().map_err(|e| (EXIT_FAILED, e.to_string()))?
+        {
+            let mut m = GripperState::zeroed();
+            m.width = s.width.clamp(0.0, 0.2);
+            m.grasping = s.is_grasped.into();
+            hand_states += 1;
+            inputs.hw_gripper = Some(from_hardware(m, hand_states, now_ns));
         }
-        let mode = driver.counters().mode;
+        let stopped = task.hardware_hold() || inputs.safe_stop.is_some_and(|s| s.active == 1);
+        let out = task.step(now_ns, inputs);
+        let mut velocity = [0.0; 7];
+        if let Some(command) = &out.hw_command {
+            velocity.copy_from_slice(&command.velocity[..7]);
+        }
+        let mode = task.counters().mode;
         match client.motion() {
             Motion::Idle if mode == LimiterMode::Tracking && !stopped && state.idle() => {
                 if let Err(e) = client.start_motion() {
-                    eprintln!("panda-driver: {e}");
+                    motm_bus::say!("panda-driver: {e}");
                 }
             }
             Motion::Running { .. } if should_finish(mode, &velocity) => client.finish(),
@@ -279,46 +285,18 @@ pub fn run_fci(
         if client.command(&velocity).map_err(lost)?.is_some() {
             latency.record(arrival.elapsed().as_nanos() as u64);
         }
-        let mut joints = JointState::zeroed();
-        joints.joint_count = 7;
-        joints.position = state.q;
-        joints.velocity = state.dq;
-        if let Err(e) = joint_out.publish(joints) {
-            eprintln!("panda-driver: {e}");
-        }
-        if let Some(hand) = &mut hand {
-            active.update().ok();
-            while let Ok(Some(command)) = gripper_in.receive() {
-                if !forward(&command, active.get(), stopped) {
-                    continue;
-                }
-                let request = match command.action() {
-                    Some(GripperAction::Open) => hand.open_request(),
-                    Some(GripperAction::Close) => hand.close_request(),
-                    None => continue,
-                };
+        if let (Some(hand), Some(command)) = (&mut hand, &out.hw_gripper) {
+            let request = match command.action() {
+                Some(GripperAction::Open) => Some(hand.open_request()),
+                Some(GripperAction::Close) => Some(hand.close_request()),
+                None => None,
+            };
+            if let Some(request) = request {
                 hand.request(request)
                     .map_err(|e| (EXIT_FAILED, e.to_string()))?;
             }
-            if let Some(s) = hand.poll().map_err(|e| (EXIT_FAILED, e.to_string()))? {
-                let mut m = GripperState::zeroed();
-                m.width = s.width.clamp(0.0, 0.2);
-                m.grasping = s.is_grasped.into();
-                if let Err(e) = gripper_out.publish(m) {
-                    eprintln!("panda-driver: {e}");
-                }
-            }
         }
-        if cycle.is_multiple_of(status_every) {
-            let mut status = status_message(&driver.counters());
-            if blocked {
-                status.mode = DriverMode::SafeStop.into();
-                status.hardware_ready = 0;
-            }
-            if let Err(e) = status_out.publish(status) {
-                eprintln!("panda-driver: {e}");
-            }
-        }
+        stack.write(out);
         systemd.iteration_done(monotonic_now_ns());
         let cycle_ns = arrival.elapsed().as_nanos() as u64;
         stats.record(cycle_ns, cycle_ns > 1_000_000, now_ns);
@@ -333,13 +311,12 @@ pub fn run_fci(
                 )
                 .ok();
         }
-        cycle += 1;
     }
     systemd.stopping();
     let (n, median, p99, max) = latency.summary();
     let c = client.counters();
-    eprintln!(
-        "panda-driver: FCI exit: {} states, {} lost, {} bad datagrams, {} commands, {} motions, {} reflexes, {} safe stops; state-to-command latency over {n}: median {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+    motm_bus::say!(
+        "panda-driver: FCI exit: {} states, {} lost, {} bad datagrams, {} commands, {} motions, {} reflexes, {} safe stops, {} port failures; state-to-command latency over {n}: median {:.1} µs, p99 {:.1} µs, max {:.1} µs",
         c.states,
         c.lost_states,
         c.bad_datagrams,
@@ -347,6 +324,7 @@ pub fn run_fci(
         c.motions,
         c.reflexes,
         c.safe_stops,
+        stack.failures(),
         median as f64 / 1e3,
         p99 as f64 / 1e3,
         max as f64 / 1e3

@@ -1,39 +1,31 @@
-//! Wiring shared by the velocity drivers (`panda-driver`, `ld60-driver`): their common flags,
-//! and the driver loop that reads the command stream, safe-stop and the hardware state, steps
-//! a [`VelocityDriver`] (the limits are enforced there) and publishes the hardware command, the
-//! re-published state and a [`DriverStatus`].
+//! Wiring shared by the velocity drivers (`panda-driver`, `ld60-driver`): their common flags
+//! ([`DriverArgs`]) and the stack side of a driver on real hardware ([`hardware`]).
 //!
-//! | process | reads | publishes |
-//! | --- | --- | --- |
-//! | panda-driver (1 kHz) | `ARM_VELOCITY_COMMAND` (every sample), `ARM_GRIPPER_COMMAND`, `CONTROL_ACTIVE_CONTROLLER`, `SAFETY_SAFE_STOP`, `HW_ARM_STATE`, `HW_GRIPPER_STATE` | `HW_ARM_COMMAND`, `HW_GRIPPER_COMMAND`, `ARM_JOINT_STATE`, `ARM_GRIPPER_STATE` (both waking), `ARM_DRIVER_STATUS` |
-//! | ld60-driver (50 Hz) | `BASE_VELOCITY_COMMAND` (every sample), `SAFETY_SAFE_STOP`, `HW_BASE_STATE` | `HW_BASE_COMMAND`, `BASE_ODOMETRY` (waking), `BASE_DRIVER_STATUS` |
+//! The driver logic is written once, in `motm_tasks::driver` (`ArmDriverTask`,
+//! `BaseDriverTask`): it reads every command sample, safe-stop and the hardware state, steps a
+//! `VelocityDriver` (the limits are enforced there), forwards the active controller's gripper
+//! commands and publishes the hardware command, the re-published state (stamped with the
+//! hardware's stamp) and a `DriverStatus` (`limit_violations`: commands that arrived beyond a
+//! limit, clamped or ignored and counted; `output_violations`: the driver's own self-check,
+//! always 0; `max_command_gap_ns`).
 //!
-//! The state is re-published at the driver's own rate, stamped with the hardware's stamp.
-//! [`DriverStatus`] (at `--status-rate`) carries `limit_violations` (commands that arrived
-//! beyond a limit: clamped or ignored, and counted), `output_violations` (the driver's own
-//! self-check, always 0) and `max_command_gap_ns`.
-//!
-//! Backends: `sim`, whose hardware boundary is sim-world (`motm/v1/hw/*` services); for the
-//! arm `fci`, the Franka Panda and Hand over their own protocols ([`fci`]); for the base
-//! `arnl` (Omron LD-60) and `can` (AgileX), whose loop is in `ld60-driver`.
+//! Backends: `sim` runs that task on `motm_runtime::serve` (its graph row
+//! `motm_graph::PANDA_DRIVER` / `LD60_DRIVER`), with sim-world's `motm/v1/hw/*` topics as the
+//! hardware. The real backends step the same task with the robot as the state source and the
+//! command sink ([`hardware::StackPorts`] carries the other topics): for the arm `fci`, the
+//! Franka Panda and Hand over their own protocols ([`fci`]); for the base `arnl` (Omron LD-60)
+//! and `can` (AgileX), in `ld60-driver`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
-use motm_bus::{
-    Bus, BusError, Flow, Latest, LoopConfig, LoopExit, Publisher, Qos, ServiceLoop, Stamp,
-    Subscriber,
-};
-use motm_core::Robot;
 use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig};
-use motm_core::velocity_driver::{VelocityDriver, VelocityDriverConfig};
-use motm_msgs::{DriverStatus, Message, SafeStop, services};
-use motm_sim::Scenario;
-use motm_sim::scenario_path;
-use motm_wire::setup::resolve_config_dir;
+use motm_core::velocity_driver::{DriverCounters, VelocityDriver};
+use motm_core::{Robot, resolve_config_dir};
 
 pub mod fci;
+pub mod hardware;
 
 /// Robot used when neither `--robot` nor `--scenario` names one.
 pub const DEFAULT_ROBOT: &str = "frankie";
@@ -55,6 +47,33 @@ pub enum Backend {
     Can,
     /// The Franka Panda over FCI and the Franka Hand (panda-driver only; see [`fci`]).
     Fci,
+}
+
+impl Backend {
+    /// The backend's name, as `--backend` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sim => "sim",
+            Self::Arnl => "arnl",
+            Self::Can => "can",
+            Self::Fci => "fci",
+        }
+    }
+}
+
+/// The driver's part of its closing line: what its counters say.
+pub fn details(counters: &DriverCounters) -> String {
+    let l = &counters.limiter;
+    format!(
+        "{} commands, {} limit violations ({} clamped, {} ignored), {} stale cycles, {} safe-stop cycles, {} output violations",
+        counters.commands_received,
+        l.limit_violations,
+        l.clamped_commands,
+        l.ignored_commands,
+        l.stale_steps,
+        l.safe_stop_steps,
+        counters.output_violations
+    )
 }
 
 /// Flags common to both drivers.
@@ -85,6 +104,19 @@ pub struct DriverArgs {
     /// Hardware backend.
     #[arg(long, value_enum, default_value_t = Backend::Sim)]
     pub backend: Backend,
+    /// Real backends: wait this long for the robot to accept the connection at start, s.
+    #[arg(long, default_value_t = 10.0)]
+    pub connect_wait: f64,
+    /// Scheduling niceness to run at (-20 to 19; below 0 needs CAP_SYS_NICE): on a shared
+    /// machine without the robot's real-time drop-ins, a 1 kHz exchange with the robot needs
+    /// the CPU before the other processes. Unset: inherited.
+    #[arg(long, allow_negative_numbers = true)]
+    pub nice: Option<i32>,
+    /// Run under SCHED_FIFO at this priority (1 to 99; needs CAP_SYS_NICE), as the robot's
+    /// systemd drop-ins do: on a loaded machine without them, the 1 kHz exchange with the robot
+    /// must not wait for the CPU. Unset: inherited.
+    #[arg(long)]
+    pub fifo: Option<i32>,
     /// Random seed (the drivers draw no random numbers; accepted like every service).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -96,10 +128,7 @@ impl DriverArgs {
     pub fn load_robot(&self) -> Result<Robot, String> {
         let dir = resolve_config_dir(self.config_dir.as_deref());
         let from_scenario = match &self.scenario {
-            Some(name) => {
-                let path = scenario_path(&dir, name);
-                Some(Scenario::from_file(&path).map_err(|e| e.to_string())?.robot)
-            }
+            Some(name) => Some(scenario_robot(&dir, name)?),
             None => None,
         };
         let name = match (&self.robot, from_scenario) {
@@ -133,14 +162,70 @@ impl DriverArgs {
         if self.stale_periods == 0 {
             return Err("--stale-periods: must be at least 1".into());
         }
-        let config = VelocityDriverConfig {
-            limiter: CommandLimiterConfig {
-                command_period: 1.0 / self.control_rate,
-                stale_periods: self.stale_periods,
-                ..CommandLimiterConfig::default()
-            },
-        };
-        VelocityDriver::new(limits, period.as_secs_f64(), config).map_err(|e| e.to_string())
+        motm_tasks::driver::velocity_driver(
+            limits,
+            period.as_secs_f64(),
+            self.control_rate,
+            self.stale_periods,
+        )
+    }
+
+    /// Applies `--nice` and `--fifo` to this process; a refusal (no CAP_SYS_NICE) is printed,
+    /// not fatal.
+    pub fn apply_priority(&self, process: &str) -> Result<(), String> {
+        apply_priority(process, self.nice, self.fifo)
+    }
+
+    /// The connection wait from `--connect-wait`, checked.
+    pub fn connect_wait(&self) -> Result<Duration, String> {
+        let s = self.connect_wait;
+        if s.is_finite() && s >= 0.0 {
+            Ok(Duration::from_secs_f64(s))
+        } else {
+            Err(format!("--connect-wait: must be a time in s >= 0, got {s}"))
+        }
+    }
+
+    /// Driver cycles between two status messages at `period` (from `--status-rate`).
+    pub fn status_every(&self, period: Duration) -> u64 {
+        ((1.0 / self.status_rate) / period.as_secs_f64())
+            .round()
+            .max(1.0) as u64
+    }
+}
+
+/// The service loop settings of a driver at `period`.
+pub fn loop_config(period: Duration) -> motm_bus::LoopConfig {
+    motm_bus::LoopConfig {
+        period,
+        ..motm_bus::LoopConfig::default()
+    }
+}
+
+/// The `robot` key of scenario `name` (a file, or a name in `<dir>/scenarios/`), read without
+/// the simulator: the rest of the scenario is sim-world's.
+fn scenario_robot(dir: &Path, name: &str) -> Result<String, String> {
+    let direct = Path::new(name);
+    let path = if direct.is_file() {
+        direct.to_path_buf()
+    } else {
+        dir.join("scenarios").join(format!("{name}.toml"))
+    };
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("--scenario {name}: {}: {e}", path.display()))?;
+    let table: toml::Table = text
+        .parse()
+        .map_err(|e| format!("--scenario {name}: {}: {e}", path.display()))?;
+    match table.get("robot") {
+        Some(toml::Value::String(robot)) => Ok(robot.clone()),
+        Some(other) => Err(format!(
+            "--scenario {name}: {}: robot: must be a robot name, got {other}",
+            path.display()
+        )),
+        None => Err(format!(
+            "--scenario {name}: {}: robot: missing",
+            path.display()
+        )),
     }
 }
 
@@ -153,98 +238,59 @@ fn positive_rate(flag: &str, rate: f64) -> Result<(), String> {
     }
 }
 
-/// The services and conversions of one driver: its command type, the hardware's state type and
-/// how velocities are read from and written to them.
-pub trait DriverTopics {
-    /// Incoming command (from the QP resolver) and outgoing hardware command.
-    type Command: Message;
-    /// Hardware state (from sim-world), re-published to the stack.
-    type State: Message;
-    /// Incoming command service.
-    const COMMAND: &'static str;
-    /// Outgoing hardware command service.
-    const HW_COMMAND: &'static str;
-    /// Incoming hardware state service.
-    const HW_STATE: &'static str;
-    /// Outgoing state service (the hardware state, re-published).
-    const STATE: &'static str;
-    /// Outgoing status service.
-    const STATUS: &'static str;
-    /// Appends the commanded velocities of `command` to `out` (all the values it carries, so
-    /// that a wrong joint count reaches the limiter and is counted).
-    fn command_velocity(command: &Self::Command, out: &mut Vec<f64>);
-    /// Appends the measured velocities of `state` to `out`.
-    fn state_velocity(state: &Self::State, out: &mut Vec<f64>);
-    /// The hardware command carrying `velocity`.
-    fn hardware_command(velocity: &[f64]) -> Self::Command;
-}
-
 pub use motm_tasks::driver::status_message;
 
-/// Runs the loop of driver `T` at `period` until SIGTERM/SIGINT. `extra` runs once per cycle
-/// after the velocity command (e.g. the gripper), with the safe-stop flag.
-pub fn run_driver<T: DriverTopics>(
-    bus: &Bus,
-    mut driver: VelocityDriver,
-    period: Duration,
-    status_period: Duration,
-    mut extra: impl FnMut(u64, bool),
-) -> Result<LoopExit, BusError> {
-    let qos = Qos::default();
-    let mut commands = Subscriber::<T::Command>::new(bus, T::COMMAND, &qos)?;
-    let mut safe_stop = Latest::<SafeStop>::new(bus, services::SAFETY_SAFE_STOP, &qos)?;
-    let mut hw_state = Latest::<T::State>::new(bus, T::HW_STATE, &qos)?;
-    let mut hw_command = Publisher::<T::Command>::new(bus, T::HW_COMMAND, &qos)?;
-    // Controllers may wake on the re-published state.
-    let mut state = Publisher::<T::State>::new(bus, T::STATE, &qos.waking())?;
-    let mut status = Publisher::<DriverStatus>::new(bus, T::STATUS, &qos)?;
-    let mut service = ServiceLoop::new(
-        bus,
-        LoopConfig {
-            period,
-            ..LoopConfig::default()
-        },
-    )?;
-    let status_every = (status_period.as_secs_f64() / period.as_secs_f64())
-        .round()
-        .max(1.0) as u64;
-    let mut values = Vec::with_capacity(8);
-    let mut measured = Vec::with_capacity(8);
-    service.run_periodic(|cycle| {
-        // A failing port is logged once per cycle and treated as no input (the limiter then
-        // ramps to zero on its own).
-        while let Ok(Some(command)) = commands.receive() {
-            values.clear();
-            T::command_velocity(&command, &mut values);
-            driver.receive(command.header().stamp_ns, &values);
+/// Applies `--nice NICE` (setpriority(2)) and `--fifo PRIO` (SCHED_FIFO, sched_setscheduler(2))
+/// to this process. A value out of range is an error naming the flag; a refusal by the
+/// system (no CAP_SYS_NICE) is printed and the process runs at the inherited priority.
+pub fn apply_priority(process: &str, nice: Option<i32>, fifo: Option<i32>) -> Result<(), String> {
+    if let Some(nice) = nice {
+        if !(-20..=19).contains(&nice) {
+            return Err(format!("--nice: must be -20 to 19, got {nice}"));
         }
-        safe_stop.update().ok();
-        let stopped = safe_stop.get().is_some_and(|s| s.active == 1);
-        let fresh_state = hw_state.update().unwrap_or(false);
-        measured.clear();
-        if let Some(s) = hw_state.get() {
-            T::state_velocity(s, &mut measured);
-            if fresh_state {
-                let stamp = Stamp::At(s.header().stamp_ns);
-                if let Err(e) = state.publish_stamped(stamp, *s) {
-                    eprintln!("{}: {e}", bus.process());
-                }
+        // SAFETY: setpriority(2) has no memory-safety preconditions; 0 is this process.
+        if unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, nice) } != 0 {
+            let e = std::io::Error::last_os_error();
+            motm_bus::say!("{process}: --nice {nice}: {e}; running at the inherited priority");
+        }
+    }
+    if let Some(priority) = fifo {
+        if !(1..=99).contains(&priority) {
+            return Err(format!("--fifo: must be 1 to 99, got {priority}"));
+        }
+        let param = libc::sched_param {
+            sched_priority: priority,
+        };
+        // SAFETY: `param` is a valid sched_param for the call; 0 is this process.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
+            let e = std::io::Error::last_os_error();
+            motm_bus::say!("{process}: --fifo {priority}: {e}; running at the inherited priority");
+        }
+    }
+    Ok(())
+}
+
+/// Calls `connect` until it succeeds or `wait` has passed (100 ms apart): a robot that is
+/// still booting, or a fake robot started just before the driver, is waited for. The error
+/// names `what` and the last failure.
+pub fn connect_within<T, E: std::fmt::Display>(
+    what: &str,
+    wait: Duration,
+    mut connect: impl FnMut() -> Result<T, E>,
+) -> Result<T, String> {
+    let start = std::time::Instant::now();
+    loop {
+        match connect() {
+            Ok(t) => return Ok(t),
+            Err(e) if start.elapsed() >= wait => {
+                return Err(format!(
+                    "{what}: {e} (still failing after {:.1} s)",
+                    start.elapsed().as_secs_f64()
+                ));
             }
+            Err(_) => std::thread::sleep(Duration::from_millis(100)),
         }
-        let measured = (!measured.is_empty()).then_some(measured.as_slice());
-        if let Some(velocity) = driver.step(cycle.now_ns, stopped, measured)
-            && let Err(e) = hw_command.publish(T::hardware_command(velocity))
-        {
-            eprintln!("{}: {e}", bus.process());
-        }
-        extra(cycle.now_ns, stopped);
-        if cycle.cycle % status_every == 0
-            && let Err(e) = status.publish(status_message(&driver.counters()))
-        {
-            eprintln!("{}: {e}", bus.process());
-        }
-        Flow::Continue
-    })
+    }
 }
 
 /// Maps a driver's result to its exit code, printing the error.
@@ -252,7 +298,7 @@ pub fn exit(process: &str, result: Result<(), (u8, String)>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err((code, message)) => {
-            eprintln!("{process}: {message}");
+            motm_bus::say!("{process}: {message}");
             ExitCode::from(code)
         }
     }
@@ -261,6 +307,27 @@ pub fn exit(process: &str, result: Result<(), (u8, String)>) -> ExitCode {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn connecting_retries_until_the_wait_is_over() {
+        let mut tries = 0;
+        let ok = connect_within("x", Duration::from_secs(10), || {
+            tries += 1;
+            if tries < 3 { Err("refused") } else { Ok(tries) }
+        });
+        assert_eq!(ok, Ok(3));
+        let err = connect_within::<(), _>("robot 1.2.3.4:1", Duration::ZERO, || Err("refused"))
+            .unwrap_err();
+        assert!(err.contains("robot 1.2.3.4:1: refused"), "{err}");
+    }
+
+    #[test]
+    fn backend_names_are_the_flag_values() {
+        use clap::ValueEnum;
+        for b in Backend::value_variants() {
+            assert_eq!(b.to_possible_value().unwrap().get_name(), b.name());
+        }
+    }
 
     #[test]
     fn bad_rates_are_errors_naming_the_flag() {
@@ -277,6 +344,17 @@ mod tests {
         assert_eq!(period, Duration::from_millis(1));
         let err = cli.args.driver(vec![], period).unwrap_err();
         assert!(err.contains("--control-rate"), "{err}");
+        let cli = Cli::try_parse_from(["d", "--nice", "-30"]).unwrap();
+        assert!(cli.args.apply_priority("d").unwrap_err().contains("--nice"));
+        let cli = Cli::try_parse_from(["d", "--fifo", "100"]).unwrap();
+        assert!(cli.args.apply_priority("d").unwrap_err().contains("--fifo"));
+        let cli = Cli::try_parse_from(["d", "--connect-wait=-1"]).unwrap();
+        assert!(
+            cli.args
+                .connect_wait()
+                .unwrap_err()
+                .contains("--connect-wait")
+        );
         let cli = Cli::try_parse_from(["d", "--robot", "nope"]).unwrap();
         assert!(cli.args.load_robot().unwrap_err().contains("nope"));
     }
@@ -305,6 +383,24 @@ mod tests {
         let err = parse(&["--scenario", "no-such-scenario"])
             .load_robot()
             .unwrap_err();
-        assert!(err.contains("no-such-scenario"), "{err}");
+        assert!(err.contains("--scenario no-such-scenario"), "{err}");
+        let dir = std::env::temp_dir().join(format!("motm-driver-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("robotless.toml");
+        for (text, expected) in [
+            ("name = \"x\"\n", "robot: missing"),
+            ("robot = 3\n", "robot: must be a robot name"),
+            ("robot = \n", "robotless.toml"),
+        ] {
+            std::fs::write(&file, text).unwrap();
+            let err = parse(&["--scenario", file.to_str().unwrap()])
+                .load_robot()
+                .unwrap_err();
+            assert!(
+                err.contains(expected) && err.contains("--scenario"),
+                "{err}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

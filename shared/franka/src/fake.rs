@@ -966,6 +966,10 @@ pub fn run_every_ms(mut cycle: impl FnMut() -> bool) {
         let now = std::time::Instant::now();
         if next > now {
             std::thread::sleep(next - now);
+            let late = next.elapsed();
+            if late > std::time::Duration::from_millis(20) {
+                eprintln!("fake robot: woke {:.1} ms late", late.as_secs_f64() * 1e3);
+            }
         } else {
             next = now;
         }

@@ -211,10 +211,17 @@ impl MemBus {
         let now = self.now_ns;
         let channel = self.channel(topic);
         let mut sample = sample;
-        let header = Arc::make_mut(&mut sample).header_mut();
+        let message = Arc::make_mut(&mut sample);
+        let header = message.header_mut();
         header.seq = channel.next_seq;
         if header.stamp_ns == 0 {
             header.stamp_ns = now;
+        }
+        // Sent now, as a deployed publisher fills it in.
+        if let Some(sent) = message.publication_stamp_mut()
+            && *sent == 0
+        {
+            *sent = now;
         }
         channel.next_seq += 1;
         let index = channel.next_index;

@@ -55,10 +55,11 @@ pub fn from_raw<T: Message>(bytes: &[u8]) -> Option<Box<T>> {
     Some(message)
 }
 
-/// Logged samples by topic and sequence number.
+/// Logged samples by topic, sequence number and stamp (a restarted publisher counts its
+/// sequence numbers from 0 again; the stamp tells its samples from the old ones).
 #[derive(Debug, Default)]
 pub struct SampleIndex {
-    samples: HashMap<(String, u64), RawSample>,
+    samples: HashMap<(String, u64, u64), RawSample>,
 }
 
 impl SampleIndex {
@@ -67,14 +68,14 @@ impl SampleIndex {
         Self {
             samples: samples
                 .into_iter()
-                .map(|s| ((s.topic.to_owned(), s.seq), s))
+                .map(|s| ((s.topic.to_owned(), s.seq, s.stamp_ns), s))
                 .collect(),
         }
     }
 
-    /// The sample `seq` of `topic`.
-    pub fn get(&self, topic: &str, seq: u64) -> Option<&RawSample> {
-        self.samples.get(&(topic.to_owned(), seq))
+    /// The sample of `topic` with sequence number `seq` and stamp `stamp_ns`.
+    pub fn get(&self, topic: &str, seq: u64, stamp_ns: u64) -> Option<&RawSample> {
+        self.samples.get(&(topic.to_owned(), seq, stamp_ns))
     }
 
     /// Samples indexed.
@@ -111,7 +112,7 @@ impl<'a> ReplaySource<'a> {
         for c in self.consumed.iter().filter(|c| c.topic == topic.name()) {
             match self
                 .index
-                .get(c.topic, c.seq)
+                .get(c.topic, c.seq, c.stamp_ns)
                 .and_then(|s| from_raw::<T>(&s.bytes))
             {
                 Some(m) => out.push(m),
@@ -179,7 +180,7 @@ impl<'a> CompareSink<'a> {
             .produced
             .iter()
             .find(|c| c.topic == topic.name())
-            .and_then(|c| self.index.get(c.topic, c.seq))
+            .and_then(|c| self.index.get(c.topic, c.seq, c.stamp_ns))
             .and_then(|s| from_raw::<T>(&s.bytes));
         let Some(logged) = logged else {
             self.difference = Some(Difference {
@@ -223,10 +224,10 @@ impl<'a> CompareSink<'a> {
     }
 }
 
-/// Fields replay does not compare: the runtime's sequence number and the QP's wall-clock solve
-/// time.
+/// Fields replay does not compare: the runtime's sequence number, the QP's wall-clock solve
+/// time and the time a publisher sent the sample ([`Message::publication_stamp_mut`]).
 fn ignored(path: &str) -> bool {
-    path.ends_with("header.seq") || path.ends_with("solve_time_ns")
+    path.ends_with("header.seq") || path.ends_with("solve_time_ns") || path == "published_ns"
 }
 
 impl Sink for CompareSink<'_> {

@@ -47,7 +47,13 @@ pub struct ReplayedCycle {
 /// A task with its inputs, type-erased for the scheduler.
 trait Scheduled {
     fn name(&self) -> &'static str;
-    fn run(&mut self, bus: &mut MemBus, reader: ReaderId, record: Option<&mut Vec<CycleRecord>>);
+    fn run(
+        &mut self,
+        bus: &mut MemBus,
+        reader: ReaderId,
+        record: Option<&mut Vec<CycleRecord>>,
+        step_ns: Option<&mut Vec<u64>>,
+    );
     fn replay(&mut self, record: &CycleRecord, index: &SampleIndex) -> ReplayedCycle;
     fn as_any(&self) -> &dyn Any;
     fn as_any_mut(&mut self) -> &mut dyn Any;
@@ -65,11 +71,21 @@ impl<T: Task + 'static> Scheduled for Slot<T> {
         self.task.name()
     }
 
-    fn run(&mut self, bus: &mut MemBus, reader: ReaderId, record: Option<&mut Vec<CycleRecord>>) {
+    fn run(
+        &mut self,
+        bus: &mut MemBus,
+        reader: ReaderId,
+        record: Option<&mut Vec<CycleRecord>>,
+        step_ns: Option<&mut Vec<u64>>,
+    ) {
         let now = bus.now_ns();
         self.inputs.clear_queues();
         self.inputs.read(&mut bus.port(reader));
+        let started = step_ns.is_some().then(std::time::Instant::now);
         let outputs = self.task.step(now, &self.inputs);
+        if let (Some(times), Some(started)) = (step_ns, started) {
+            times.push(started.elapsed().as_nanos() as u64);
+        }
         let mut port = bus.port(reader);
         outputs.write(&mut port);
         let produced = port.produced();
@@ -122,6 +138,8 @@ struct Entry {
     next_release_ns: u64,
     last_run_ns: Option<u64>,
     arrival: Vec<&'static str>,
+    /// Wall-clock durations of the task's steps, ns, when timed ([`Scheduler::time_steps`]).
+    step_ns: Option<Vec<u64>>,
 }
 
 /// The deterministic in-process scheduler.
@@ -146,6 +164,22 @@ impl Scheduler {
     /// Also keeps a [`CycleRecord`] of every cycle of every task ([`Scheduler::take_records`]).
     pub fn record_cycles(&mut self) {
         self.records.get_or_insert_with(Vec::new);
+    }
+
+    /// Also measures the wall-clock time of every step of every task added so far
+    /// ([`Scheduler::step_times`]); for benchmarks (the schedule itself never reads a clock).
+    pub fn time_steps(&mut self) {
+        for entry in &mut self.entries {
+            entry.step_ns.get_or_insert_with(Vec::new);
+        }
+    }
+
+    /// The measured step durations of each timed task, ns, in task order.
+    pub fn step_times(&self) -> Vec<(&'static str, &[u64])> {
+        self.entries
+            .iter()
+            .filter_map(|e| e.step_ns.as_deref().map(|t| (e.slot.name(), t)))
+            .collect()
     }
 
     /// The cycle records kept since the last call.
@@ -174,6 +208,7 @@ impl Scheduler {
             next_release_ns: self.bus.now_ns(),
             last_run_ns: None,
             arrival,
+            step_ns: None,
         });
         self.entries.len() - 1
     }
@@ -244,7 +279,12 @@ impl Scheduler {
                 }
             }
             entry.last_run_ns = Some(now);
-            entry.slot.run(&mut self.bus, reader, self.records.as_mut());
+            entry.slot.run(
+                &mut self.bus,
+                reader,
+                self.records.as_mut(),
+                entry.step_ns.as_mut(),
+            );
         }
         self.bus.set_now_ns(now + self.tick_ns);
     }
@@ -327,6 +367,7 @@ mod tests {
             control_path: false,
             sim_only: false,
             host: crate::spec::Host::Process,
+            standby_of: None,
         }
     }
 

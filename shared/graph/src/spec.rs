@@ -64,6 +64,11 @@ pub struct TaskSpec {
     pub sim_only: bool,
     /// Where it runs.
     pub host: Host,
+    /// For a hot standby: the task it stands by for. It is a second instance of that task's
+    /// logic in a process of its own, solving every cycle beside it; its consumers take its
+    /// outputs when the primary's stop, and the watchdog counts the two as one redundant
+    /// source. A stack config may leave it out (no standby).
+    pub standby_of: Option<&'static str>,
 }
 
 impl TaskSpec {
@@ -111,6 +116,7 @@ pub const SIM_WORLD: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: true,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The arm driver.
@@ -123,6 +129,7 @@ pub const PANDA_DRIVER: TaskSpec = TaskSpec {
         t::SAFETY_SAFE_STOP.spec(),
         t::HW_ARM_STATE.spec(),
         t::HW_GRIPPER_STATE.spec(),
+        t::BASE_ODOMETRY.spec(),
     ],
     outputs: &[
         t::HW_ARM_COMMAND.spec(),
@@ -136,6 +143,7 @@ pub const PANDA_DRIVER: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The base driver.
@@ -156,6 +164,7 @@ pub const LD60_DRIVER: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// Perception of the current pick's cube or press's button.
@@ -173,6 +182,7 @@ pub const PERCEPTION: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The MotM base controller.
@@ -189,6 +199,7 @@ pub const BASE_PLANNER: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The reach-phase controller.
@@ -209,6 +220,7 @@ pub const REACHER: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The hot-swappable final-phase task controller.
@@ -227,6 +239,7 @@ pub const FINAL_PHASE: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The redundancy-resolution QP.
@@ -252,6 +265,15 @@ pub const QP_RESOLVER: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
+};
+
+/// The hot-standby redundancy-resolution QP: the same task as [`QP_RESOLVER`], solving every
+/// cycle from the same inputs, whose commands the drivers take when the primary's stop.
+pub const QP_RESOLVER_STANDBY: TaskSpec = TaskSpec {
+    name: "qp-resolver-standby",
+    standby_of: Some(QP_RESOLVER.name),
+    ..QP_RESOLVER
 };
 
 /// The watchdog (it also reads every process's heartbeat).
@@ -267,6 +289,7 @@ pub const WATCHDOG: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The supervisor's mission task.
@@ -285,6 +308,7 @@ pub const MISSION: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: false,
     host: Host::Supervisor,
+    standby_of: None,
 };
 
 /// Every task of the stack, in start order (upstream first): the one table the rest derives
@@ -298,6 +322,7 @@ pub const GRAPH: &[TaskSpec] = &[
     REACHER,
     FINAL_PHASE,
     QP_RESOLVER,
+    QP_RESOLVER_STANDBY,
     WATCHDOG,
     MISSION,
 ];
@@ -324,6 +349,7 @@ pub const REACTIVE: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The planning baseline (plan once, then track the plan open loop): in its graph it replaces
@@ -342,6 +368,7 @@ pub const PLANNING: TaskSpec = TaskSpec {
     control_path: true,
     sim_only: false,
     host: Host::Process,
+    standby_of: None,
 };
 
 /// The baselines' tasks, for the in-process comparisons of the paper's experiments.
@@ -363,12 +390,25 @@ pub struct StandIn {
 }
 
 /// The hardware stand-ins a stack may add to the graph's processes.
-pub const STAND_INS: &[StandIn] = &[StandIn {
-    name: "fake-ld60",
-    serves: "ld60-driver",
-    inputs: &[t::HW_BASE_STATE.spec()],
-    outputs: &[t::HW_BASE_COMMAND.spec()],
-}];
+pub const STAND_INS: &[StandIn] = &[
+    StandIn {
+        name: "fake-panda",
+        serves: "panda-driver",
+        inputs: &[t::HW_ARM_STATE.spec(), t::HW_GRIPPER_STATE.spec()],
+        outputs: &[t::HW_ARM_COMMAND.spec(), t::HW_GRIPPER_COMMAND.spec()],
+    },
+    StandIn {
+        name: "fake-ld60",
+        serves: "ld60-driver",
+        inputs: &[t::HW_BASE_STATE.spec()],
+        outputs: &[t::HW_BASE_COMMAND.spec()],
+    },
+];
+
+/// The environment variable naming the folder where stand-ins write their counts
+/// (`<name>-<pid>.json`, rewritten every second and on exit), for `motm run --hardware fake`
+/// to report the limit violations the fake robots saw (`violations_total` in each file).
+pub const STAND_IN_REPORT_DIR_ENV: &str = "MOTM_FAKE_REPORT_DIR";
 
 /// The stand-in `name`.
 pub fn stand_in(name: &str) -> Option<&'static StandIn> {
@@ -391,6 +431,23 @@ pub fn task(name: &str) -> Option<&'static TaskSpec> {
 /// publishers must wake the readers.
 pub fn wakes_readers(topic: &str) -> bool {
     GRAPH.iter().any(|t| t.triggered_by(topic))
+}
+
+/// The control tasks a replay log rebuilds and replays: every row that is not the simulator's
+/// and whose logic is a [`crate::Task`] (the watchdog's loop is its own: it reads the heartbeat
+/// of every process the stack config names, which its ports cannot declare).
+///
+/// A hot standby is not replayed: it is its primary's logic again, fed the same samples, and
+/// the in-process runtime (which has no process to lose) runs the primary alone.
+pub fn replayed_tasks() -> impl Iterator<Item = &'static TaskSpec> {
+    GRAPH
+        .iter()
+        .filter(|t| !t.sim_only && t.name != WATCHDOG.name && t.standby_of.is_none())
+}
+
+/// The hot standbys of task `name` (see [`TaskSpec::standby_of`]).
+pub fn standbys_of(name: &str) -> impl Iterator<Item = &'static TaskSpec> {
+    GRAPH.iter().filter(move |t| t.standby_of == Some(name))
 }
 
 /// The tasks that run as processes of their own, in start order.
@@ -473,6 +530,10 @@ mod tests {
             }
         }
         assert_eq!(stand_in("fake-ld60").map(|s| s.serves), Some("ld60-driver"));
+        assert_eq!(
+            stand_in("fake-panda").map(|s| s.serves),
+            Some("panda-driver")
+        );
     }
 
     #[test]

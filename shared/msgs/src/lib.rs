@@ -122,6 +122,14 @@ pub unsafe trait Message: ZeroCopySend + Copy + core::fmt::Debug + 'static {
         self.validate_fields()
     }
 
+    /// The field that carries the time the sample was sent, if the type has one
+    /// (`CameraImage::image_published_ns`, `QpStatus::published_ns`): a publisher fills it in
+    /// when it is zero, just before the sample goes out, so that latencies measured from or to
+    /// it leave out the work done before the send.
+    fn publication_stamp_mut(&mut self) -> Option<&mut u64> {
+        None
+    }
+
     /// A value with every field zero and a current-version header.
     fn zeroed() -> Self {
         // SAFETY: the trait contract guarantees that all-zero bytes are a valid value.

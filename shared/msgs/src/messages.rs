@@ -76,7 +76,17 @@ macro_rules! code_enum {
 /// Implements [`Message`] for a payload with a `header` field; `$check` and `$msg` name the
 /// field checker and the message inside the validation body.
 macro_rules! message {
+    ($ty:ident, published = $field:ident, |$msg:ident, $check:ident| $body:block) => {
+        message!(@impl $ty, |$msg, $check| $body, {
+            fn publication_stamp_mut(&mut self) -> Option<&mut u64> {
+                Some(&mut self.$field)
+            }
+        });
+    };
     ($ty:ident, |$msg:ident, $check:ident| $body:block) => {
+        message!(@impl $ty, |$msg, $check| $body, {});
+    };
+    (@impl $ty:ident, |$msg:ident, $check:ident| $body:block, { $($extra:item)* }) => {
         // SAFETY: every field of the payload is an integer, a float or an array of them.
         unsafe impl Message for $ty {
             const NAME: &'static str = stringify!($ty);
@@ -96,6 +106,8 @@ macro_rules! message {
                 };
                 $body
             }
+
+            $($extra)*
         }
     };
 }
@@ -221,9 +233,15 @@ pub struct BaseVelocityCommand {
     pub v: f64,
     /// Yaw rate, rad/s.
     pub omega: f64,
+    /// Id of the resolver instance that computed the command (see
+    /// [`ArmVelocityCommand::resolver_id`]).
+    pub resolver_id: u32,
+    /// Explicit padding; always zero.
+    pub reserved: u32,
 }
 
 message!(BaseVelocityCommand, |m, c| {
+    padding(c, m.reserved)?;
     c.in_range("v", m.v, -envelope::BASE_SPEED, envelope::BASE_SPEED)?;
     c.in_range(
         "omega",
@@ -243,15 +261,15 @@ pub struct ArmVelocityCommand {
     pub header: Header,
     /// Number of arm joints in use (1..=[`MAX_ARM_JOINTS`]); entries past it are zero.
     pub joint_count: u32,
-    /// Explicit padding; always zero.
-    pub reserved: u32,
+    /// Id of the resolver instance that computed the command (the primary's or its hot
+    /// standby's; 0 for other senders), so a driver takes one instance's stream.
+    pub resolver_id: u32,
     /// Joint velocities, rad/s.
     pub velocity: [f64; MAX_ARM_JOINTS],
 }
 
 message!(ArmVelocityCommand, |m, c| {
     let n = c.count("joint_count", m.joint_count, MAX_ARM_JOINTS)?;
-    padding(c, m.reserved)?;
     c.joint_array("velocity", &m.velocity, n, envelope::JOINT_VELOCITY)
 });
 
@@ -367,8 +385,8 @@ pub struct TargetEstimate {
     pub velocity: [f64; 3],
     /// 1 when the object was seen in that image, 0 when the estimate is a prediction.
     pub visible: u32,
-    /// Explicit padding; always zero.
-    pub reserved: u32,
+    /// Index of the mission task the estimate was made for.
+    pub task_index: u32,
 }
 
 message!(TargetEstimate, |m, c| {
@@ -383,7 +401,12 @@ message!(TargetEstimate, |m, c| {
     c.all_within("position", &m.position, envelope::WORLD_POSITION)?;
     c.all_within("velocity", &m.velocity, envelope::OBJECT_SPEED)?;
     flag(c, "visible", m.visible)?;
-    padding(c, m.reserved)
+    c.in_range(
+        "task_index",
+        f64::from(m.task_index),
+        0.0,
+        f64::from(u16::MAX),
+    )
 });
 
 /// Base planner output: where the base passes closest to the target and when the target
@@ -452,8 +475,8 @@ pub struct CameraImage {
     pub width: u32,
     /// Image height, pixels; must equal [`CAMERA_HEIGHT`].
     pub height: u32,
-    /// When the frame was published, ns (monotonic, at or after the exposure `header.stamp_ns`):
-    /// the start of the frame-to-command latency.
+    /// When the frame was sent, ns (monotonic, at or after the exposure `header.stamp_ns`;
+    /// filled in by the publisher): the start of the frame-to-command latency.
     pub image_published_ns: u64,
     /// Pixels, `(row * width + column) * 3 + channel`.
     pub pixels: [u8; CAMERA_IMAGE_BYTES],
@@ -469,7 +492,7 @@ impl core::fmt::Debug for CameraImage {
     }
 }
 
-message!(CameraImage, |m, c| {
+message!(CameraImage, published = image_published_ns, |m, c| {
     c.in_range(
         "width",
         f64::from(m.width),
@@ -684,6 +707,9 @@ code_enum!(
         StaleCommand = 3,
         /// An operator asked for it.
         Operator = 4,
+        /// The stack is starting: a watched process or command stream has not been heard from
+        /// yet. A hold, not a fault.
+        Starting = 5,
     }
 );
 
@@ -747,15 +773,18 @@ pub struct QpStatus {
     /// is `header.stamp_ns - image_stamp_ns`.
     pub image_stamp_ns: u64,
     /// Publication time of that image, ns (0 when the target was not a perception estimate):
-    /// the frame-to-command latency is `header.stamp_ns - image_published_ns`.
+    /// the frame-to-command latency is `published_ns - image_published_ns`.
     pub image_published_ns: u64,
     /// The world twist that was resolved, after the twist rate limit
     /// `[vx, vy, vz, wx, wy, wz]`, m/s and rad/s: the tool's commanded motion, which the reacher
     /// feeds back as its tool state (all zero when the command was a stop).
     pub twist: [f64; 6],
+    /// When this status was sent, ns (filled in by the publisher): the resolver sends it after
+    /// the joint command of the same cycle, so it bounds that command's send time from above.
+    pub published_ns: u64,
 }
 
-message!(QpStatus, |m, c| {
+message!(QpStatus, published = published_ns, |m, c| {
     c.code::<QpOutcome>("outcome", m.outcome)?;
     c.in_range("objective", m.objective, f64::MIN, f64::MAX)?;
     c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)?;
@@ -767,6 +796,13 @@ message!(QpStatus, |m, c| {
         ));
     }
     image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
+    if m.published_ns != 0 && m.published_ns < m.header.stamp_ns {
+        return Err(c.reject(
+            "published_ns",
+            None,
+            RejectReason::Inconsistent("sent before its own stamp"),
+        ));
+    }
     for i in 0..6 {
         let max = if i < 3 {
             envelope::EE_SPEED
@@ -870,8 +906,8 @@ pub struct SimTruth {
     pub object_placed_time: [f64; MAX_SIM_OBJECTS],
     /// Index of the held object, or −1 when none is held.
     pub held_object: i32,
-    /// Explicit padding; always zero.
-    pub reserved: u32,
+    /// Buttons that have registered their press so far.
+    pub buttons_pressed: u32,
     /// Opening between the gripper fingers, m.
     pub gripper_opening: f64,
     /// Mean |EE acceleration| so far (low-pass filtered), m/s².
@@ -937,7 +973,12 @@ message!(SimTruth, |m, c| {
             },
         ));
     }
-    padding(c, m.reserved)?;
+    c.in_range(
+        "buttons_pressed",
+        f64::from(m.buttons_pressed),
+        0.0,
+        f64::from(u16::MAX),
+    )?;
     c.in_range(
         "gripper_opening",
         m.gripper_opening,
@@ -987,6 +1028,13 @@ pub struct DriverStatus {
     pub output_violations: u64,
     /// Longest gap between consecutive received commands (header stamps), ns.
     pub max_command_gap_ns: u64,
+    /// Id of the resolver instance whose commands the driver takes (0 before the first).
+    pub resolver_id: u32,
+    /// Times the driver turned to another resolver instance because the one it followed
+    /// stopped commanding (a hot-standby takeover).
+    pub resolver_takeovers: u32,
+    /// Longest interval a takeover made between the commands the driver took, ns.
+    pub max_takeover_interval_ns: u64,
 }
 
 impl DriverStatus {
@@ -1014,3 +1062,6 @@ pub use supervision::*;
 
 mod swap;
 pub use swap::*;
+
+mod replay;
+pub use replay::*;

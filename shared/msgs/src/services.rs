@@ -78,3 +78,6 @@ pub const BASE_DRIVER_STATUS: &str = "motm/v1/base/driver_status";
 pub const SUPERVISOR_SWAP_REQUEST: &str = "motm/v1/supervisor/swap_request";
 /// The supervisor's hot-swap reports ([`crate::SwapStatus`]).
 pub const SUPERVISOR_SWAP_STATUS: &str = "motm/v1/supervisor/swap_status";
+/// What each task cycle of the deployed stack consumed and produced ([`crate::TaskCycle`]),
+/// from every task process: the replay log's index.
+pub const REPLAY_CYCLES: &str = "motm/v1/replay/cycles";

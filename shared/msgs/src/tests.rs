@@ -206,6 +206,8 @@ fn base_velocity_command_rejects_bad_fields() {
         header: header(),
         v: 0.3,
         omega: 0.1,
+        resolver_id: 1,
+        reserved: 0,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -223,6 +225,12 @@ fn base_velocity_command_rejects_bad_fields() {
         None,
         not_finite,
     );
+    assert_rejected(
+        &BaseVelocityCommand { reserved: 1, ..ok },
+        "reserved",
+        None,
+        inconsistent,
+    );
 }
 
 #[test]
@@ -230,7 +238,7 @@ fn arm_velocity_command_rejects_bad_fields() {
     let ok = ArmVelocityCommand {
         header: header(),
         joint_count: 6,
-        reserved: 0,
+        resolver_id: 2,
         velocity: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0],
     };
     assert_eq!(check(&ok), Ok(()));
@@ -316,7 +324,7 @@ fn target_estimate_rejects_bad_fields() {
         position: [2.0, 0.0, 0.45],
         velocity: [0.03, 0.0, 0.0],
         visible: 1,
-        reserved: 0,
+        task_index: 0,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -577,8 +585,24 @@ fn qp_status_rejects_bad_fields() {
         image_stamp_ns: NOW - 40_000_000,
         image_published_ns: NOW - 39_000_000,
         twist: [0.1, 0.0, 0.0, 0.0, 0.0, 0.2],
+        published_ns: 0,
     };
     assert_eq!(check(&ok), Ok(()));
+    // Sent at or after its own stamp, or not filled in.
+    let sent = QpStatus {
+        published_ns: ok.header.stamp_ns,
+        ..ok
+    };
+    assert_eq!(check(&sent), Ok(()));
+    assert_rejected(
+        &QpStatus {
+            published_ns: ok.header.stamp_ns - 1,
+            ..ok
+        },
+        "published_ns",
+        None,
+        inconsistent,
+    );
     let mut fast = ok;
     fast.twist[4] = f64::INFINITY;
     assert_rejected(&fast, "twist", Some(4), not_finite);

@@ -122,4 +122,6 @@ pub mod topics {
     pub const SUPERVISOR_SWAP_REQUEST: Topic<SwapRequest> = Topic::new(s::SUPERVISOR_SWAP_REQUEST);
     /// The supervisor's hot-swap reports.
     pub const SUPERVISOR_SWAP_STATUS: Topic<SwapStatus> = Topic::new(s::SUPERVISOR_SWAP_STATUS);
+    /// What each task cycle consumed and produced, from every task process.
+    pub const REPLAY_CYCLES: Topic<TaskCycle> = Topic::new(s::REPLAY_CYCLES);
 }

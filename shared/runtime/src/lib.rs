@@ -16,9 +16,14 @@
 //! topic that some task's [`Trigger::Arrival`] names notify its ready event
 //! ([`Qos::waking`]), and a task listens to the events of its own trigger inputs only.
 //!
-//! Stamps: a task's output with a zero header stamp is stamped at publication
-//! ([`Stamp::Now`]); any other stamp is kept ([`Stamp::At`]). The publisher assigns the
-//! sequence numbers.
+//! Stamps: a task's output with a zero header stamp is stamped with the monotonic time at
+//! publication; any other stamp is kept ([`Stamp::At`]). The publisher assigns the sequence
+//! numbers.
+//!
+//! Replay records: after each cycle, [`TaskPorts::step`] publishes a [`msgs::TaskCycle`] on
+//! [`topics::REPLAY_CYCLES`]: the task, its cycle and time, the samples its inputs held and the
+//! samples it published (topic, sequence number, stamp). The logger writes them, with the raw
+//! samples, into a log that `motm replay` feeds through the same tasks.
 
 use std::any::Any;
 use std::collections::HashMap;
@@ -28,8 +33,10 @@ use motm_bus::{
     Bus, BusError, CycleStats, Flow, LoopConfig, LoopExit, Publisher, Qos, ServiceLoop, Stamp,
     Subscriber, Trigger as ReadyTrigger,
 };
-use motm_graph::{PortSet, Sink, Source, Task, TaskSpec, TopicVisitor, Trigger, boxed_copy};
-use motm_msgs::{Message, Topic, topics};
+use motm_graph::{
+    Consumed, PortSet, Sink, Source, Task, TaskSpec, TopicVisitor, Trigger, boxed_copy,
+};
+use motm_msgs::{self as msgs, Message, Topic, topics};
 
 /// The service settings of `topic` (the same in every process, since the first one to open a
 /// service fixes them): [`Qos::large`] for the camera image, the defaults otherwise; with
@@ -37,6 +44,29 @@ use motm_msgs::{Message, Topic, topics};
 pub fn qos(topic: &str) -> Qos {
     let base = if topic == topics::CAMERA_IMAGE.name() {
         Qos::large()
+    } else if topic == topics::REPLAY_CYCLES.name() {
+        // Every task process publishes its cycles here (a restarted one beside the old one
+        // for a moment), together thousands a second: the logger's queue holds half a second
+        // of them at 4 kHz, and only the logger (and a spare) reads them.
+        Qos {
+            max_publishers: 2 * motm_graph::GRAPH.len(),
+            max_subscribers: 2,
+            tap_buffer: 2048,
+            ..Qos::default()
+        }
+    } else if [
+        topics::ARM_VELOCITY_COMMAND.name(),
+        topics::BASE_VELOCITY_COMMAND.name(),
+        topics::ARM_GRIPPER_COMMAND.name(),
+    ]
+    .contains(&topic)
+    {
+        // Commands: the drivers take every sample, so a driver that falls behind for a while
+        // still sees each one.
+        Qos {
+            subscriber_buffer: 64,
+            ..Qos::default()
+        }
     } else {
         Qos::default()
     };
@@ -47,6 +77,21 @@ pub fn qos(topic: &str) -> Qos {
     }
 }
 
+/// Subscribers kept free on every topic beyond the graph's readers: the logger, a tool
+/// (`motm run`, `motm status`) and a restarted reader beside its dead predecessor's port.
+pub const SPARE_SUBSCRIBERS: usize = 4;
+
+/// The ports the graph needs on `topic`: `(publishers, subscribers)`, room for every task that
+/// writes or reads it (a hot standby writes and reads what its primary does), twice the
+/// writers (a restart beside its predecessor, a fault injector) and [`SPARE_SUBSCRIBERS`]
+/// beyond the readers. [`Qos::default`] must cover it on every topic (a test checks), so
+/// that whichever process creates a service, the stack fits.
+pub fn graph_ports(topic: &str) -> (usize, usize) {
+    let readers = motm_graph::GRAPH.iter().filter(|t| t.reads(topic)).count();
+    let writers = motm_graph::GRAPH.iter().filter(|t| t.writes(topic)).count();
+    (2 * writers, readers + SPARE_SUBSCRIBERS)
+}
+
 /// The bus ports of one task: a [`Source`] and a [`Sink`] over iceoryx2.
 pub struct BusPorts {
     /// `Subscriber<T>` by topic name.
@@ -55,6 +100,8 @@ pub struct BusPorts {
     publishers: HashMap<&'static str, Box<dyn Any>>,
     /// Ready events of the task's trigger inputs.
     triggers: Vec<ReadyTrigger>,
+    /// The samples published in the current cycle.
+    produced: Vec<Consumed>,
     /// Failed receives and publishes (each leaves the previous value in use).
     failures: u64,
     /// The last failure.
@@ -67,15 +114,17 @@ struct Opener<'a> {
     spec: &'a TaskSpec,
     ports: &'a mut BusPorts,
     publish: bool,
+    /// Topics not opened.
+    except: &'a [&'a str],
     error: Option<BusError>,
 }
 
 impl TopicVisitor for Opener<'_> {
     fn topic<T: Message>(&mut self, topic: Topic<T>) {
-        if self.error.is_some() {
+        let name = topic.name();
+        if self.error.is_some() || self.except.contains(&name) {
             return;
         }
-        let name = topic.name();
         let qos = qos(name);
         let opened = if self.publish {
             Publisher::<T>::new(self.bus, name, &qos)
@@ -105,10 +154,22 @@ impl BusPorts {
     /// Opens on `bus` one subscriber per topic of `I` and one publisher per topic of `O`, for
     /// the task of row `spec` (its trigger inputs also get their ready-event listeners).
     pub fn open<I: PortSet, O: PortSet>(bus: &Bus, spec: &TaskSpec) -> Result<Self, BusError> {
+        Self::open_except::<I, O>(bus, spec, &[])
+    }
+
+    /// [`BusPorts::open`] without the topics named in `except` (a driver on real hardware:
+    /// its `hw/*` topics are the robot). Reading or publishing one of them is a panic, like
+    /// any topic outside the task's ports.
+    pub fn open_except<I: PortSet, O: PortSet>(
+        bus: &Bus,
+        spec: &TaskSpec,
+        except: &[&str],
+    ) -> Result<Self, BusError> {
         let mut ports = Self {
             subscribers: HashMap::new(),
             publishers: HashMap::new(),
             triggers: Vec::new(),
+            produced: Vec::new(),
             failures: 0,
             last_failure: None,
         };
@@ -118,6 +179,7 @@ impl BusPorts {
                 spec,
                 ports: &mut ports,
                 publish,
+                except,
                 error: None,
             };
             if publish {
@@ -197,12 +259,18 @@ impl Sink for BusPorts {
             .get_mut(topic.name())
             .and_then(|p| p.downcast_mut())
             .unwrap_or_else(|| panic!("{topic:?} is not an output of this task"));
-        let stamp = match message.header().stamp_ns {
-            0 => Stamp::Now,
-            ns => Stamp::At(ns),
+        let stamp_ns = match message.header().stamp_ns {
+            0 => motm_bus::monotonic_now_ns(),
+            ns => ns,
         };
-        if let Err(e) = publisher.publish_copy(stamp, message) {
-            self.failed(e);
+        let seq = publisher.next_seq();
+        match publisher.publish_copy(Stamp::At(stamp_ns), message) {
+            Ok(()) => self.produced.push(Consumed {
+                topic: topic.name(),
+                seq,
+                stamp_ns,
+            }),
+            Err(e) => self.failed(e),
         }
     }
 }
@@ -212,6 +280,7 @@ impl Sink for BusPorts {
 pub struct TaskPorts<T: Task> {
     ports: BusPorts,
     inputs: T::Inputs,
+    cycles: CycleLog,
 }
 
 impl<T: Task> TaskPorts<T> {
@@ -220,15 +289,23 @@ impl<T: Task> TaskPorts<T> {
         Ok(Self {
             ports: BusPorts::open::<T::Inputs, T::Outputs>(bus, spec)?,
             inputs: T::Inputs::default(),
+            cycles: CycleLog::open(bus, spec)?,
         })
     }
 
-    /// One cycle at `now_ns`: empties the queued inputs, takes in what arrived, steps `task`
-    /// and publishes its outputs.
+    /// One cycle at `now_ns`: empties the queued inputs, takes in what arrived, steps `task`,
+    /// publishes its outputs and then the cycle's [`msgs::TaskCycle`] record.
     pub fn step(&mut self, task: &mut T, now_ns: u64) {
         self.inputs.clear_queues();
         self.inputs.read(&mut self.ports);
+        self.ports.produced.clear();
         task.step(now_ns, &self.inputs).write(&mut self.ports);
+        if let Err(e) = self
+            .cycles
+            .publish(now_ns, &self.inputs, &self.ports.produced)
+        {
+            self.ports.failed(e);
+        }
     }
 
     /// The inputs as of the last cycle.
@@ -244,6 +321,87 @@ impl<T: Task> TaskPorts<T> {
     /// The ports, mutable (to take the triggers).
     pub fn ports_mut(&mut self) -> &mut BusPorts {
         &mut self.ports
+    }
+}
+
+/// The publisher of a task's [`msgs::TaskCycle`] records, for replay logs.
+struct CycleLog {
+    publisher: Publisher<msgs::TaskCycle>,
+    /// The task's index in [`motm_graph::GRAPH`].
+    task: u32,
+    /// This process's pid.
+    pid: u32,
+    /// Topic names in the order of [`motm_graph::published_topics`] (their index is their id).
+    topics: Vec<&'static str>,
+    cycle: u64,
+    held: Vec<Consumed>,
+    record: Box<msgs::TaskCycle>,
+}
+
+impl CycleLog {
+    /// The cycle log of the task of row `spec`.
+    fn open(bus: &Bus, spec: &TaskSpec) -> Result<Self, BusError> {
+        let topic = topics::REPLAY_CYCLES.name();
+        Ok(Self {
+            publisher: Publisher::new(bus, topic, &qos(topic))?,
+            task: motm_graph::GRAPH
+                .iter()
+                .position(|t| t.name == spec.name)
+                .unwrap_or(usize::MAX) as u32,
+            pid: std::process::id(),
+            topics: motm_graph::published_topics()
+                .iter()
+                .map(|t| t.name)
+                .collect(),
+            cycle: 0,
+            held: Vec::new(),
+            record: Box::new(msgs::TaskCycle::zeroed()),
+        })
+    }
+
+    /// Publishes the record of the cycle at `now_ns` that held `inputs` and published
+    /// `produced`.
+    fn publish(
+        &mut self,
+        now_ns: u64,
+        inputs: &impl PortSet,
+        produced: &[Consumed],
+    ) -> Result<(), BusError> {
+        self.held.clear();
+        inputs.held(&mut self.held);
+        let r = &mut *self.record;
+        r.cycle = self.cycle;
+        r.now_ns = now_ns;
+        r.task = self.task;
+        r.pid = self.pid;
+        let mut n = 0;
+        let mut truncated = false;
+        let mut counts = [0u32; 2];
+        for (list, count) in [&self.held[..], produced].into_iter().zip(&mut counts) {
+            for sample in list {
+                let Some(topic) = self.topics.iter().position(|t| *t == sample.topic) else {
+                    truncated = true;
+                    continue;
+                };
+                if n == msgs::CYCLE_SAMPLES {
+                    truncated = true;
+                    continue;
+                }
+                r.samples[n] = msgs::SampleRef {
+                    topic: topic as u32,
+                    reserved: 0,
+                    seq: sample.seq,
+                    stamp_ns: sample.stamp_ns,
+                };
+                n += 1;
+                *count += 1;
+            }
+        }
+        r.samples[n..].fill(msgs::SampleRef::default());
+        [r.consumed, r.produced] = counts;
+        r.truncated = truncated.into();
+        self.cycle += 1;
+        self.publisher.publish_copy(Stamp::At(now_ns), r)
     }
 }
 
@@ -356,7 +514,7 @@ pub fn serve<T: Task>(
                 format!("on {}", names.join(", "))
             }
         };
-        eprintln!(
+        motm_bus::say!(
             "{name}: running at {} Hz, {trigger}",
             1.0 / config.period.as_secs_f64()
         );
@@ -364,11 +522,11 @@ pub fn serve<T: Task>(
     });
     match result {
         Ok(report) => {
-            eprintln!("{}", report.line(name, &details(task)));
+            motm_bus::say!("{}", report.line(name, &details(task)));
             std::process::ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("{name}: {e}");
+            motm_bus::say!("{name}: {e}");
             std::process::ExitCode::from(EXIT_FAILED)
         }
     }

@@ -85,6 +85,7 @@ const fn spec(name: &'static str, trigger: Trigger) -> TaskSpec {
         control_path: false,
         sim_only: false,
         host: Host::Process,
+        standby_of: None,
     }
 }
 
@@ -111,11 +112,18 @@ fn the_sink_keeps_a_tasks_stamp_stamps_a_zero_one_now_and_numbers_the_samples() 
     let ipc = ipc("stamps");
     {
         let bus = Bus::open_with("writer", &ipc).unwrap();
-        let mut twists =
-            Subscriber::<TwistCommand>::new(&bus, topics::CONTROL_REACH_TWIST.name(), &qos(""))
-                .unwrap();
-        let mut joints =
-            Subscriber::<JointState>::new(&bus, topics::ARM_JOINT_STATE.name(), &qos("")).unwrap();
+        let mut twists = Subscriber::<TwistCommand>::new(
+            &bus,
+            topics::CONTROL_REACH_TWIST.name(),
+            &qos(topics::CONTROL_REACH_TWIST.name()),
+        )
+        .unwrap();
+        let mut joints = Subscriber::<JointState>::new(
+            &bus,
+            topics::ARM_JOINT_STATE.name(),
+            &qos(topics::ARM_JOINT_STATE.name()),
+        )
+        .unwrap();
         let mut ports = TaskPorts::<Writer>::open(&bus, &WRITER).unwrap();
         let mut writer = Writer { cycle: 0 };
         let before = motm_bus::monotonic_now_ns();
@@ -196,11 +204,32 @@ fn an_arrival_task_still_cycles_once_a_period_when_nothing_arrives() {
 }
 
 #[test]
-fn only_the_camera_is_large_and_only_trigger_inputs_wake() {
+fn only_the_camera_is_large_only_trigger_inputs_wake_and_every_reader_has_room() {
     assert_eq!(qos(topics::CAMERA_IMAGE.name()), Qos::large().waking());
     assert_eq!(qos(topics::ARM_JOINT_STATE.name()), Qos::default());
     assert_eq!(
         qos(topics::PERCEPTION_TARGET.name()),
         Qos::default().waking()
     );
+}
+
+#[test]
+fn every_topic_has_room_for_the_graphs_ports_whoever_creates_it() {
+    for topic in motm_graph::published_topics() {
+        let (publishers, subscribers) = graph_ports(topic.name);
+        let q = qos(topic.name);
+        assert!(
+            publishers <= q.max_publishers && subscribers <= q.max_subscribers,
+            "{}: the graph needs {publishers} publishers and {subscribers} subscribers, {q:?}",
+            topic.name
+        );
+        let d = Qos::default();
+        assert!(
+            publishers <= d.max_publishers && subscribers <= d.max_subscribers,
+            "{}: a service created with the defaults has no room for the graph",
+            topic.name
+        );
+    }
+    // Primary and standby resolver, each with room for a restart beside it.
+    assert_eq!(graph_ports(topics::ARM_VELOCITY_COMMAND.name()).0, 4);
 }

@@ -134,6 +134,10 @@ pub struct TrialTrace {
     /// The replay log of a MotM trial (only when asked for).
     #[serde(skip)]
     pub log: Option<TrialLog>,
+    /// Wall-clock durations of each task's steps, ns (only when asked for:
+    /// [`crate::runner::RunnerConfig::time_steps`]).
+    #[serde(skip)]
+    pub step_ns: Vec<(&'static str, Vec<u64>)>,
 }
 
 /// A MotM trial's replay log: every sample published on the in-memory bus and every task

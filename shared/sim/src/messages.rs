@@ -94,6 +94,7 @@ pub fn truth(sim: &SimWorld, catch_up_cycles: u64) -> SimTruth {
         .held_object
         .filter(|&i| i < count)
         .map_or(-1, |i| i as i32);
+    m.buttons_pressed = truth.buttons.iter().filter(|b| b.pressed).count() as u32;
     m.gripper_opening = truth.gripper_opening;
     m.ee_acc_mean = sim.meter().mean();
     m.ee_acc_max = sim.meter().max();

@@ -3,6 +3,9 @@
 //! may be new ones), its outputs compared with the logged ones. "What would the new gains have
 //! done on yesterday's run?"
 
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+
 use motm_core::Robot;
 use motm_graph::replay::{Difference, SampleIndex};
 use serde::Serialize;
@@ -46,17 +49,20 @@ pub struct TaskReplay {
 
 /// Whether `name` is a control task (replayed), as opposed to the simulated hardware.
 pub fn is_replayed(name: &str) -> bool {
-    motm_graph::task(name).is_some_and(|spec| !spec.sim_only)
+    motm_graph::replayed_tasks().any(|spec| spec.name == name)
 }
 
 /// Replays `log` of a MotM trial of `scenario` with `seed` through tasks built with `config`
-/// (all control tasks, or only `only`). The result lists the tasks in graph order.
+/// (all control tasks, or only `only`). `pids[i]` is the process that ran `log.cycles[i]`
+/// (all 0 for an in-process log): each process is replayed by tasks of its own, built fresh
+/// as a started or restarted process builds them. The result lists the tasks in graph order.
 pub fn replay_log(
     robot: &Robot,
     scenario: &Scenario,
     seed: u64,
     config: &RunnerConfig,
     log: &TrialLog,
+    pids: &[u32],
     only: Option<&str>,
 ) -> Result<Vec<TaskReplay>, String> {
     if let Some(name) = only
@@ -64,19 +70,20 @@ pub fn replay_log(
     {
         return Err(format!(
             "--task {name}: not a control task of the graph (one of {})",
-            motm_graph::GRAPH
-                .iter()
-                .filter(|t| is_replayed(t.name))
+            motm_graph::replayed_tasks()
                 .map(|t| t.name)
                 .collect::<Vec<_>>()
                 .join(", ")
         ));
     }
-    let sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
-        .map_err(|e| e.to_string())?;
-    let mut scheduler = motm_graph(robot, scenario, sim, config)?;
+    let build = || -> Result<_, String> {
+        let sim = SimWorld::new(robot, scenario, seed, config, SimWorldConfig::default())
+            .map_err(|e| e.to_string())?;
+        motm_graph(robot, scenario, sim, config)
+    };
+    let mut instances = HashMap::new();
     let index = SampleIndex::new(log.samples.iter().cloned());
-    let mut reports: Vec<TaskReplay> = scheduler
+    let mut reports: Vec<TaskReplay> = build()?
         .task_names()
         .into_iter()
         .filter(|name| is_replayed(name) && only.is_none_or(|o| o == *name))
@@ -88,9 +95,14 @@ pub fn replay_log(
             first_difference: None,
         })
         .collect();
-    for record in &log.cycles {
+    for (i, record) in log.cycles.iter().enumerate() {
         let Some(report) = reports.iter_mut().find(|r| r.name == record.task) else {
             continue;
+        };
+        let pid = pids.get(i).copied().unwrap_or(0);
+        let scheduler = match instances.entry(pid) {
+            Entry::Occupied(e) => e.into_mut(),
+            Entry::Vacant(e) => e.insert(build()?),
         };
         let Some(replayed) = scheduler.replay(record, &index) else {
             continue;

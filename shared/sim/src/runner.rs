@@ -61,6 +61,9 @@ pub struct RunnerConfig {
     /// Also keep a replay log of a MotM trial in the trace ([`TrialTrace::log`]): every
     /// sample on the bus and every task cycle's consumed and produced samples.
     pub record_log: bool,
+    /// Also measure the wall-clock time of every task step ([`TrialTrace::step_ns`]), for
+    /// `motm bench tasks`.
+    pub time_steps: bool,
     /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
     pub camera: CameraConfig,
     /// Perception.
@@ -85,6 +88,7 @@ impl Default for RunnerConfig {
             trace_every: 10,
             record_cycles: false,
             record_log: false,
+            time_steps: false,
             camera: CameraConfig::default(),
             perception: PerceptionConfig::default(),
             acceleration: AccelerationFilterConfig::default(),
@@ -273,7 +277,7 @@ fn hardware_graph(
         1.0 / config.physics_step,
     );
     s.add(
-        ArmDriverTask::new(arm, status_every(arm_rate)),
+        ArmDriverTask::new(arm, driver::BaseBraking::of(robot), status_every(arm_rate)),
         &motm_graph::PANDA_DRIVER,
         arm_rate,
     );
@@ -512,6 +516,9 @@ fn run_graph_trial(
         scheduler.bus().record_samples();
         TrialLog::default()
     });
+    if record_trace && config.time_steps {
+        scheduler.time_steps();
+    }
     let control_ticks = ((1.0 / config.control_rate_hz) / config.physics_step)
         .round()
         .max(1.0) as u64;
@@ -584,6 +591,13 @@ fn run_graph_trial(
     }
     if let (Some(trace), Some(log)) = (trace.as_mut(), log) {
         trace.log = Some(log);
+    }
+    if let Some(trace) = trace.as_mut() {
+        trace.step_ns = scheduler
+            .step_times()
+            .into_iter()
+            .map(|(name, times)| (name, times.to_vec()))
+            .collect();
     }
     let sim = sim_of(&scheduler).ok_or("the graph has no sim-world task")?;
     Ok((trial_result(sim, wall_start), trace))

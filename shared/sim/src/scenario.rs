@@ -198,8 +198,14 @@ impl Scenario {
     }
 
     /// Replaces the base speed (e.g. from `--base-speed`), with the same check as the file's key.
-    pub fn set_base_speed(&mut self, base_speed: f64) -> Result<(), ModelError> {
-        check_base_speed(&self.path, base_speed)?;
+    pub fn set_base_speed(&mut self, base_speed: f64) -> Result<(), String> {
+        // The value comes from the command line, so the error names the flag, not the file.
+        if check_base_speed(&self.path, base_speed).is_err() {
+            return Err(format!(
+                "--base-speed {base_speed}: must be in (0, {MAX_BASE_SPEED}] m/s (it overrides base_speed of {})",
+                self.path.display()
+            ));
+        }
         self.base_speed = base_speed;
         Ok(())
     }

@@ -206,9 +206,11 @@ fn base_speed_override_is_checked() {
     let mut s = Scenario::from_toml_str(Path::new("example.toml"), VALID).unwrap();
     s.set_base_speed(0.4).unwrap();
     assert_eq!(s.base_speed, 0.4);
-    let message = s.set_base_speed(-1.0).unwrap_err().to_string();
+    let message = s.set_base_speed(-1.0).unwrap_err();
     assert!(
-        message.contains("example.toml") && message.contains("base_speed"),
+        message.starts_with("--base-speed -1:")
+            && message.contains("example.toml")
+            && message.contains("base_speed"),
         "{message}"
     );
     assert_eq!(s.base_speed, 0.4);

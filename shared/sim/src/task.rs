@@ -148,8 +148,8 @@ impl Task for SimWorldTask {
             let mut image = boxed_zeroed::<msgs::CameraImage>();
             messages::camera_image(&frame, &mut image);
             image.header.stamp_ns = stamp.max(1);
-            // Published in this cycle: the start of the frame-to-command latency.
-            image.image_published_ns = now_ns.max(image.header.stamp_ns);
+            // `image_published_ns` stays 0: the publisher fills in when the frame is sent, the
+            // start of the frame-to-command latency (after the render and the copy).
             Arc::from(image)
         });
         let status = self.sim.status();

@@ -64,15 +64,12 @@ impl Task for BasePlannerTask {
 
     fn step(&mut self, now_ns: u64, inputs: &BasePlannerInputs) -> BasePlannerOutputs {
         // The base controller needs no joint state.
-        let snapshot = self.view.snapshot(
-            now_ns,
-            Raw {
-                mission: inputs.mission.as_ref(),
-                joints: Some(None),
-                odometry: inputs.odometry.as_ref(),
-                target: inputs.target.as_ref(),
-            },
-        );
+        let snapshot = self.view.snapshot(Raw {
+            mission: inputs.mission.as_ref(),
+            joints: Some(None),
+            odometry: inputs.odometry.as_ref(),
+            target: inputs.target.as_ref(),
+        });
         let (Some(mission), Some(measured), Some(target)) =
             (snapshot.mission, snapshot.measured, snapshot.target)
         else {

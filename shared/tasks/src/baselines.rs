@@ -112,7 +112,7 @@ impl ReactiveTask {
         Self {
             baseline,
             tasks,
-            selector: TargetSelector::default(),
+            selector: TargetSelector,
         }
     }
 
@@ -158,7 +158,7 @@ impl Task for ReactiveTask {
             next_waypoint: task.position,
         };
         let perceived = inputs.target.as_ref().map(convert::perceived);
-        let target = self.selector.select(&view, now_ns, perceived.as_ref());
+        let target = self.selector.select(&view, perceived.as_ref());
         let out = self.baseline.step(&ReactiveInput {
             t: seconds(now_ns),
             base: convert::base_pose(odometry),

@@ -112,6 +112,7 @@ pub fn perceived(m: &msgs::TargetEstimate) -> PerceivedTarget {
         },
         stamp_ns: m.header.stamp_ns,
         image_stamp_ns: m.image_stamp_ns,
+        task_index: m.task_index as usize,
     }
 }
 
@@ -127,6 +128,7 @@ pub fn target_message(report: &PerceptionReport) -> msgs::TargetEstimate {
         .map(|v| v.clamp(-envelope::OBJECT_SPEED, envelope::OBJECT_SPEED))
         .into();
     m.visible = u32::from(report.estimate.visible);
+    m.task_index = report.task_index as u32;
     m
 }
 

@@ -4,12 +4,27 @@
 //! velocity, acceleration or jerk beyond them, and ramps to zero on a stale command or
 //! safe-stop), and publishes the hardware command, the re-published state (stamped with the
 //! hardware's stamp) and a [`msgs::DriverStatus`] every `status_every` cycles.
+//!
+//! The sim backend runs them on the runtime with sim-world's `hw/*` topics; a real backend
+//! steps the same task with the robot's state in the `hw_*` inputs and sends the `hw_*`
+//! outputs to the robot. A robot that is not fit to move (a reflex, a faulted base) sets the
+//! task's hardware hold ([`ArmDriverTask::set_hardware_hold`]): the driver then ramps to zero
+//! as under safe-stop, and its status says `SafeStop` with `hardware_ready` 0.
+//!
+//! **The arm stops with the base.** The base brakes at its deceleration limit (about 0.4 s from
+//! 0.3 m/s on Frankie); an arm that stopped within milliseconds would sweep the tool through
+//! the world by the base's braking distance, and knock a cube off from between closing
+//! fingers. So the arm driver spreads every stop (stale command, safe-stop) over the time the
+//! base needs to brake from its last odometry ([`BaseBraking`]), scaling its motion down with
+//! the base's: the tool keeps its place in the world while both stop. A hardware hold (a
+//! reflex) still stops at once. The spread is capped at [`MAX_STOP_SPREAD_S`].
 
 use motm_core::command_limiter::LimiterMode;
 use motm_core::velocity_driver::{DriverCounters, VelocityDriver};
 use motm_graph::{Task, ports};
 use motm_msgs::{self as msgs, Message, topics};
 
+use crate::controllers::ResolverSelector;
 use crate::convert;
 
 /// The status message of a driver with `counters`.
@@ -43,23 +58,79 @@ pub fn forward_gripper(
     !safe_stop && active.is_none_or(|a| a.controller_id == command.controller_id)
 }
 
-/// What both drivers keep: the limiter, the status period and scratch buffers.
+/// Longest time the arm driver spreads a stop over, s: a stop never takes longer than this,
+/// whatever the odometry says.
+pub const MAX_STOP_SPREAD_S: f64 = 1.0;
+
+/// How long the base takes to brake from a twist, at its deceleration limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaseBraking {
+    /// Forward deceleration limit, m/s².
+    pub linear: f64,
+    /// Turning deceleration limit, rad/s².
+    pub angular: f64,
+}
+
+impl BaseBraking {
+    /// The base of `robot`.
+    pub fn of(robot: &motm_core::Robot) -> Self {
+        let axes = base_axes(robot);
+        Self {
+            linear: axes[0].acceleration,
+            angular: axes[1].acceleration,
+        }
+    }
+
+    /// Time to brake from forward speed `v` (m/s) and turn rate `omega` (rad/s), s, at most
+    /// [`MAX_STOP_SPREAD_S`]; 0 for a non-finite twist.
+    pub fn time(&self, v: f64, omega: f64) -> f64 {
+        let t = (v.abs() / self.linear).max(omega.abs() / self.angular);
+        if t.is_finite() {
+            t.min(MAX_STOP_SPREAD_S)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A quarter of a control period: how long a driver waits for the resolver it follows before it
+/// takes the standby's command of that cycle ([`ResolverSelector`]). Both instances' commands
+/// of a cycle come within a fraction of a millisecond of each other, so a quarter period
+/// (1.25 ms at 200 Hz) passes a live instance over only when it is that late.
+const TAKEOVER_WAIT_DIVISOR: u64 = 4;
+
+/// What both drivers keep: the limiter, the resolver selection, the status period, the
+/// hardware hold and a scratch buffer for the measured velocity.
 struct DriverCore {
     driver: VelocityDriver,
+    resolvers: ResolverSelector,
     status_every: u64,
     cycle: u64,
-    values: Vec<f64>,
+    hold: bool,
     measured: Vec<f64>,
 }
 
 impl DriverCore {
     fn new(driver: VelocityDriver, status_every: u64) -> Self {
+        let period_ns = (driver.command_period() * 1e9) as u64;
         Self {
+            resolvers: ResolverSelector::new(period_ns, period_ns / TAKEOVER_WAIT_DIVISOR),
             driver,
             status_every: status_every.max(1),
             cycle: 0,
-            values: Vec::with_capacity(8),
+            hold: false,
             measured: Vec::with_capacity(8),
+        }
+    }
+
+    /// Takes in `velocity`, commanded by resolver instance `resolver_id` at `stamp_ns`, when it
+    /// is from the instance followed ([`ResolverSelector`]).
+    fn receive(&mut self, resolver_id: u32, stamp_ns: u64, velocity: &[f64]) {
+        if let Some((held_ns, held)) = self.resolvers.due(stamp_ns) {
+            self.driver.receive(held_ns, &held);
+        }
+        if self.resolvers.offer(resolver_id, stamp_ns, velocity) {
+            self.driver.receive(stamp_ns, velocity);
         }
     }
 
@@ -70,14 +141,24 @@ impl DriverCore {
         stopped: bool,
         measured: Option<&[f64]>,
     ) -> (Option<Vec<f64>>, Option<msgs::DriverStatus>) {
+        if let Some((stamp_ns, velocity)) = self.resolvers.due(now_ns) {
+            self.driver.receive(stamp_ns, &velocity);
+        }
         let velocity = self
             .driver
-            .step(now_ns, stopped, measured)
+            .step(now_ns, stopped || self.hold, measured)
             .map(<[f64]>::to_vec);
-        let status = self
-            .cycle
-            .is_multiple_of(self.status_every)
-            .then(|| convert::stamped(status_message(&self.driver.counters()), now_ns));
+        let status = self.cycle.is_multiple_of(self.status_every).then(|| {
+            let mut status = status_message(&self.driver.counters());
+            status.resolver_id = self.resolvers.following();
+            status.resolver_takeovers = self.resolvers.takeovers();
+            status.max_takeover_interval_ns = self.resolvers.max_takeover_interval_ns();
+            if self.hold {
+                status.mode = msgs::DriverMode::SafeStop.into();
+                status.hardware_ready = 0;
+            }
+            convert::stamped(status, now_ns)
+        });
         self.cycle += 1;
         (velocity, status)
     }
@@ -87,6 +168,32 @@ impl DriverCore {
         self.driver.counters()
     }
 }
+
+/// The hardware hold of both driver tasks.
+macro_rules! hardware_hold {
+    ($task:ty) => {
+        impl $task {
+            /// Holds the driver in safe-stop while `hold` (the robot is not fit to move): its
+            /// output ramps to zero and its status says `SafeStop`, hardware not ready.
+            pub fn set_hardware_hold(&mut self, hold: bool) {
+                self.core.hold = hold;
+            }
+
+            /// Whether the hardware hold is set.
+            pub fn hardware_hold(&self) -> bool {
+                self.core.hold
+            }
+
+            /// The limiter's counters.
+            pub fn counters(&self) -> DriverCounters {
+                self.core.counters()
+            }
+        }
+    };
+}
+
+hardware_hold!(ArmDriverTask);
+hardware_hold!(BaseDriverTask);
 
 /// Whether safe-stop is raised.
 fn safe_stop(message: &Option<msgs::SafeStop>) -> bool {
@@ -118,6 +225,8 @@ ports! {
         latest hw_state: msgs::JointState = topics::HW_ARM_STATE,
         /// The hardware's gripper state.
         latest hw_gripper: msgs::GripperState = topics::HW_GRIPPER_STATE,
+        /// The base's odometry: how long its braking takes.
+        latest base: msgs::BaseOdometry = topics::BASE_ODOMETRY,
     }
 }
 
@@ -140,23 +249,26 @@ ports! {
 /// The arm driver task.
 pub struct ArmDriverTask {
     core: DriverCore,
+    braking: BaseBraking,
     republished: Option<(u64, u64)>,
     gripper_republished: Option<(u64, u64)>,
 }
 
 impl ArmDriverTask {
-    /// The arm driver over `driver`, sending its status every `status_every` cycles.
-    pub fn new(driver: VelocityDriver, status_every: u64) -> Self {
+    /// The arm driver over `driver`, stopping with a base that brakes as `braking`, sending its
+    /// status every `status_every` cycles.
+    pub fn new(driver: VelocityDriver, braking: BaseBraking, status_every: u64) -> Self {
         Self {
             core: DriverCore::new(driver, status_every),
+            braking,
             republished: None,
             gripper_republished: None,
         }
     }
 
-    /// The limiter's counters.
-    pub fn counters(&self) -> DriverCounters {
-        self.core.counters()
+    /// Number of joints driven.
+    pub fn axes(&self) -> usize {
+        self.core.driver.axes()
     }
 }
 
@@ -170,15 +282,18 @@ impl Task for ArmDriverTask {
 
     fn step(&mut self, now_ns: u64, inputs: &ArmDriverInputs) -> ArmDriverOutputs {
         for command in &inputs.commands {
-            self.core.values.clear();
-            self.core
-                .values
-                .extend_from_slice(&command.velocity[..command.joint_count as usize]);
-            self.core
-                .driver
-                .receive(command.header.stamp_ns, &self.core.values);
+            self.core.receive(
+                command.resolver_id,
+                command.header.stamp_ns,
+                &command.velocity[..command.joint_count as usize],
+            );
         }
         let stopped = safe_stop(&inputs.safe_stop);
+        let spread = match &inputs.base {
+            Some(odometry) if !self.core.hold => self.braking.time(odometry.v, odometry.omega),
+            _ => 0.0,
+        };
+        self.core.driver.set_stop_time(spread);
         self.core.measured.clear();
         if let Some(state) = &inputs.hw_state {
             self.core
@@ -195,7 +310,7 @@ impl Task for ArmDriverTask {
         let hw_gripper = inputs
             .gripper
             .iter()
-            .rfind(|c| forward_gripper(c, inputs.active.as_ref(), stopped))
+            .rfind(|c| forward_gripper(c, inputs.active.as_ref(), stopped || self.core.hold))
             .map(|c| convert::stamped(*c, now_ns));
         ArmDriverOutputs {
             hw_command: velocity.map(|v| convert::stamped(convert::arm_command(&v), now_ns)),
@@ -246,11 +361,6 @@ impl BaseDriverTask {
             republished: None,
         }
     }
-
-    /// The limiter's counters.
-    pub fn counters(&self) -> DriverCounters {
-        self.core.counters()
-    }
 }
 
 impl Task for BaseDriverTask {
@@ -263,9 +373,11 @@ impl Task for BaseDriverTask {
 
     fn step(&mut self, now_ns: u64, inputs: &BaseDriverInputs) -> BaseDriverOutputs {
         for command in &inputs.commands {
-            self.core
-                .driver
-                .receive(command.header.stamp_ns, &[command.v, command.omega]);
+            self.core.receive(
+                command.resolver_id,
+                command.header.stamp_ns,
+                &[command.v, command.omega],
+            );
         }
         let stopped = safe_stop(&inputs.safe_stop);
         let measured = inputs.hw_state.as_ref().map(|s| [s.v, s.omega]);
@@ -331,6 +443,69 @@ mod tests {
     use super::*;
     use motm_core::command_limiter::LimiterCounters;
     use motm_msgs::DriverMode;
+
+    #[test]
+    fn the_hardware_hold_ramps_to_zero_reports_a_safe_stop_and_holds_the_gripper() {
+        use motm_core::command_limiter::AxisLimits;
+        let axes = vec![
+            AxisLimits {
+                velocity: 1.0,
+                acceleration: 1.0,
+                jerk: f64::INFINITY,
+            };
+            7
+        ];
+        let driver = velocity_driver(axes, 0.001, 200.0, 10).unwrap();
+        let braking = BaseBraking {
+            linear: 1.0,
+            angular: 1.0,
+        };
+        let mut task = ArmDriverTask::new(driver, braking, 1);
+        let mut inputs = ArmDriverInputs::default();
+        let mut state = msgs::JointState::zeroed();
+        state.joint_count = 7;
+        inputs.hw_state = Some(state);
+        let speed = |out: &ArmDriverOutputs| out.hw_command.map_or(0.0, |c| c.velocity[0]);
+        let mut last = 0.0;
+        for k in 1..=200u64 {
+            let now = k * 1_000_000;
+            let mut c = convert::arm_command(&[0.5; 7]);
+            c.header.stamp_ns = now;
+            inputs.commands = vec![c];
+            last = speed(&task.step(now, &inputs));
+        }
+        assert!(last > 0.15, "tracking: {last}");
+        task.set_hardware_hold(true);
+        let mut close = msgs::GripperCommand::zeroed();
+        close.action = msgs::GripperAction::Close.into();
+        inputs.gripper = vec![close];
+        for k in 201..=600u64 {
+            let now = k * 1_000_000;
+            let mut c = convert::arm_command(&[0.5; 7]);
+            c.header.stamp_ns = now;
+            inputs.commands = vec![c];
+            let out = task.step(now, &inputs);
+            let v = speed(&out);
+            // Never faster than the acceleration limit allows on the way down.
+            assert!(
+                v <= last + 1e-12 && last - v <= 1.0 * 0.001 + 1e-9,
+                "{last} -> {v}"
+            );
+            last = v;
+            assert!(
+                out.hw_gripper.is_none(),
+                "no gripper command under the hold"
+            );
+            let status = out.status.unwrap();
+            assert_eq!(status.mode(), Some(DriverMode::SafeStop));
+            assert_eq!(status.hardware_ready, 0);
+        }
+        assert_eq!(last, 0.0);
+        task.set_hardware_hold(false);
+        let out = task.step(601_000_000, &inputs);
+        assert!(out.hw_gripper.is_some());
+        assert_eq!(out.status.unwrap().hardware_ready, 1);
+    }
 
     #[test]
     fn status_message_carries_every_counter_and_validates() {

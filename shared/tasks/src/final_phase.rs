@@ -81,15 +81,12 @@ impl Task for FinalPhaseTask {
     }
 
     fn step(&mut self, now_ns: u64, inputs: &FinalPhaseInputs) -> FinalPhaseOutputs {
-        let snapshot = self.view.snapshot(
-            now_ns,
-            Raw {
-                mission: inputs.mission.as_ref(),
-                joints: read_joints(&inputs.joints),
-                odometry: inputs.odometry.as_ref(),
-                target: inputs.target.as_ref(),
-            },
-        );
+        let snapshot = self.view.snapshot(Raw {
+            mission: inputs.mission.as_ref(),
+            joints: read_joints(&inputs.joints),
+            odometry: inputs.odometry.as_ref(),
+            target: inputs.target.as_ref(),
+        });
         let (Some(mission), Some(measured), Some(target)) =
             (snapshot.mission, snapshot.measured, snapshot.target)
         else {

@@ -63,7 +63,7 @@ impl MissionSequencerTask {
     ) -> Self {
         Self {
             tracker: MissionTracker::new(robot, config, tasks, start),
-            selector: TargetSelector::default(),
+            selector: TargetSelector,
             final_twists: PerController::default(),
             last: None,
         }
@@ -109,7 +109,7 @@ impl Task for MissionSequencerTask {
         self.final_twists.extend(&inputs.final_twists);
         let view = self.view();
         let perceived = inputs.target.as_ref().map(convert::perceived);
-        let estimate = self.selector.select(&view, now_ns, perceived.as_ref());
+        let estimate = self.selector.select(&view, perceived.as_ref());
         let out = match (&inputs.joints, &inputs.odometry) {
             (Some(joints), Some(odometry)) => {
                 let active = inputs.active.as_ref().map(|a| a.controller_id);

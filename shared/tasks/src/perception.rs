@@ -1,16 +1,19 @@
-//! The perception task: records the tool pose the robot believes it has (each joint state at
-//! the latest odometry pose), and for each new palm-camera image of the current pick or press
-//! pairs the image with the pose nearest its capture stamp, runs perception and publishes the
-//! estimate (with the stamp of the image it came from).
+//! The perception task: keeps the robot state it believes it has (each joint state at the
+//! latest odometry pose), and for each new palm-camera image of the current pick or press
+//! pairs the image with the tool pose of the state nearest its capture stamp, runs perception
+//! and publishes the estimate (with the stamp of the image it came from). The tool pose is
+//! computed for that one state only, not for every 1 kHz joint state.
 //!
 //! Assumption: camera image stamps are exposure times on the same monotonic clock as the
 //! joint-state stamps. The task runs on each image's arrival, and at the control rate in
 //! between so that its tool-pose history stays dense.
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use motm_core::Robot;
 use motm_core::camera::CameraCalibration;
+use motm_core::kinematics::BasePose;
 use motm_core::perception::PerceptionConfig;
 use motm_core::stack::perception::{CameraFrame, PerceptionCycle};
 use motm_graph::{Task, ports};
@@ -41,11 +44,17 @@ ports! {
     }
 }
 
+/// One believed robot state: its stamp, the base pose and the arm's joint positions.
+type BelievedState = (u64, BasePose, [f64; msgs::MAX_ARM_JOINTS]);
+
 /// The perception task.
 pub struct PerceptionTask {
     robot: Robot,
     view: ControlView,
     cycle: PerceptionCycle,
+    /// The last `history` believed states, oldest first.
+    states: VecDeque<BelievedState>,
+    history: usize,
     /// The image processed last (its sequence number and stamp).
     last_image: Option<(u64, u64)>,
     published: u64,
@@ -65,6 +74,8 @@ impl PerceptionTask {
             robot,
             view: ControlView::new(run_out_distance),
             cycle: PerceptionCycle::new(config, calibration, history),
+            states: VecDeque::with_capacity(history.max(1)),
+            history: history.max(1),
             last_image: None,
             published: 0,
         }
@@ -88,22 +99,21 @@ impl Task for PerceptionTask {
         if let Some(odometry) = &inputs.odometry {
             let base = convert::base_pose(odometry);
             for state in &inputs.joints {
-                let arm_q = convert::arm_q(state);
-                if arm_q.len() == self.robot.arm_dof() {
-                    self.cycle
-                        .record_tool(state.header.stamp_ns, self.robot.tool_pose(&base, arm_q));
+                if convert::arm_q(state).len() == self.robot.arm_dof() {
+                    if self.states.len() == self.history {
+                        self.states.pop_front();
+                    }
+                    self.states
+                        .push_back((state.header.stamp_ns, base, state.position));
                 }
             }
         }
-        let snapshot = self.view.snapshot(
-            now_ns,
-            Raw {
-                mission: inputs.mission.as_ref(),
-                joints: Some(None),
-                odometry: inputs.odometry.as_ref(),
-                target: None,
-            },
-        );
+        let snapshot = self.view.snapshot(Raw {
+            mission: inputs.mission.as_ref(),
+            joints: Some(None),
+            odometry: inputs.odometry.as_ref(),
+            target: None,
+        });
         let (Some(mission), Some(image)) = (snapshot.mission, inputs.image.as_ref()) else {
             return PerceptionOutputs::default();
         };
@@ -119,6 +129,17 @@ impl Task for PerceptionTask {
             height: image.height,
             stamp_ns: image.header.stamp_ns,
         };
+        // The tool pose of the state nearest the exposure (the first of equals, as the pose
+        // history picks).
+        if let Some((stamp, base, q)) = self
+            .states
+            .iter()
+            .min_by_key(|(stamp, _, _)| stamp.abs_diff(frame.stamp_ns))
+        {
+            let arm_q = &q[..self.robot.arm_dof()];
+            self.cycle
+                .record_tool(*stamp, self.robot.tool_pose(base, arm_q));
+        }
         let report = self.cycle.observe(&mission, &frame);
         self.published += u64::from(report.is_some());
         PerceptionOutputs {

@@ -5,12 +5,12 @@
 
 use motm_core::TargetEstimate;
 use motm_core::stack::resolver::{
-    MeasuredState, ResolverCycle, ResolverCycleConfig, ResolverCycleInput,
+    MeasuredState, ResolverCycle, ResolverCycleConfig, ResolverCycleInput, TwistSource,
 };
 use motm_graph::{Task, ports};
 use motm_msgs::{self as msgs, topics};
 
-use crate::controllers::PerController;
+use crate::controllers::{PRIMARY_RESOLVER_ID, PerController};
 use crate::view::{ControlView, Raw, read_joints};
 use crate::{ControlSetup, convert};
 
@@ -53,6 +53,7 @@ pub struct ResolverTask {
     view: ControlView,
     final_twists: PerController<msgs::TwistCommand>,
     cycle: ResolverCycle,
+    resolver_id: u32,
 }
 
 impl ResolverTask {
@@ -67,7 +68,16 @@ impl ResolverTask {
                 limits,
                 setup.dt(),
             ),
+            resolver_id: PRIMARY_RESOLVER_ID,
         }
+    }
+
+    /// The same task as the instance `resolver_id` ([`PRIMARY_RESOLVER_ID`] by default, or
+    /// [`crate::controllers::STANDBY_RESOLVER_ID`] for the hot standby), which its commands
+    /// carry.
+    pub fn with_resolver_id(mut self, resolver_id: u32) -> Self {
+        self.resolver_id = resolver_id;
+        self
     }
 
     /// The resolver cycle (QP error count, fallbacks, stops).
@@ -86,15 +96,12 @@ impl Task for ResolverTask {
 
     fn step(&mut self, now_ns: u64, inputs: &ResolverInputs) -> ResolverOutputs {
         self.final_twists.extend(&inputs.final_twists);
-        let snapshot = self.view.snapshot(
-            now_ns,
-            Raw {
-                mission: inputs.mission.as_ref(),
-                joints: read_joints(&inputs.joints),
-                odometry: inputs.odometry.as_ref(),
-                target: inputs.target.as_ref(),
-            },
-        );
+        let snapshot = self.view.snapshot(Raw {
+            mission: inputs.mission.as_ref(),
+            joints: read_joints(&inputs.joints),
+            odometry: inputs.odometry.as_ref(),
+            target: inputs.target.as_ref(),
+        });
         let active = inputs.active.as_ref().map(|m| m.controller_id);
         // The one wall-clock value a task reports: the solve time, for the logs (replay
         // ignores it).
@@ -134,15 +141,20 @@ impl Task for ResolverTask {
             snapshot.image_published_ns,
         );
         status.twist = out.twist.into();
+        // A stale robot state sends no command (see `TwistSource::Withheld`).
+        let send = out.source != TwistSource::Withheld;
+        let id = self.resolver_id;
         ResolverOutputs {
-            arm: Some(convert::stamped(
-                convert::arm_command(&out.resolved.arm_qd),
-                now_ns,
-            )),
-            base: Some(convert::stamped(
-                convert::base_command(&out.resolved.base),
-                now_ns,
-            )),
+            arm: send.then(|| {
+                let mut m = convert::arm_command(&out.resolved.arm_qd);
+                m.resolver_id = id;
+                convert::stamped(m, now_ns)
+            }),
+            base: send.then(|| {
+                let mut m = convert::base_command(&out.resolved.base);
+                m.resolver_id = id;
+                convert::stamped(m, now_ns)
+            }),
             // Never stamped before the frame behind its target (see perception's stamp).
             status: Some(convert::stamped(
                 status,

@@ -64,21 +64,18 @@ impl ControlView {
     pub fn new(run_out_distance: f64) -> Self {
         Self {
             latch: MissionLatch::new(run_out_distance),
-            selector: TargetSelector::default(),
+            selector: TargetSelector,
         }
     }
 
-    /// The inputs at monotonic time `now_ns`.
-    pub fn snapshot<'a>(&mut self, now_ns: u64, raw: Raw<'a>) -> Snapshot<'a> {
+    /// This cycle's inputs.
+    pub fn snapshot<'a>(&mut self, raw: Raw<'a>) -> Snapshot<'a> {
         let mission = raw
             .mission
             .and_then(convert::mission_report)
             .and_then(|report| self.latch.update(&report));
         let perceived = raw.target.map(convert::perceived);
-        let selected = mission.map(|m| {
-            self.selector
-                .select_with_source(&m, now_ns, perceived.as_ref())
-        });
+        let selected = mission.map(|m| self.selector.select_with_source(&m, perceived.as_ref()));
         let measured = match (raw.joints, raw.odometry) {
             (Some(joints), Some(odometry)) => Some(Measured {
                 base: convert::base_pose(odometry),

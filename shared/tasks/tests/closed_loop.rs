@@ -224,6 +224,7 @@ const PLANT: TaskSpec = TaskSpec {
     control_path: false,
     sim_only: true,
     host: motm_graph::Host::Process,
+    standby_of: None,
 };
 
 /// The plant and the control tasks, scheduled at the control period.

@@ -75,7 +75,7 @@ impl Service {
         let (setup, mut task) = match built {
             Ok(built) => built,
             Err(e) => {
-                eprintln!("{name}: {e}");
+                motm_bus::say!("{name}: {e}");
                 return ExitCode::from(EXIT_BAD_INPUT);
             }
         };

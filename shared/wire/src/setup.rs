@@ -133,7 +133,7 @@ pub fn exit_on_error<T, E: std::fmt::Display>(process: &str, result: Result<T, E
     match result {
         Ok(value) => value,
         Err(e) => {
-            eprintln!("{process}: {e}");
+            motm_bus::say!("{process}: {e}");
             std::process::exit(2);
         }
     }

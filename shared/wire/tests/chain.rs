@@ -3,9 +3,11 @@
 //! the mission task (`--no-spawn`: it starts nothing), with this test standing in for the
 //! drivers (a kinematic robot that integrates the commands in real time). They must carry a
 //! pick and a place of static targets through to the end of the mission, with finite commands
-//! within the joint velocity limits, take the time of the same tasks in one process (the
-//! in-process scheduler, on the same plant) within 5 %,
-//! and leave no process and no shared memory behind.
+//! within the joint velocity limits, pass through the same mission phases in the same order as
+//! the same tasks in one process (the in-process scheduler, on the same plant), and leave no
+//! process and no shared memory behind. The two mission times are printed, not compared: the
+//! plant here integrates in wall-clock time, which scheduling noise moves (the timing
+//! equivalence of the two forms is the full stack's, `tests/e2e/equivalence.rs`).
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
@@ -277,8 +279,8 @@ impl Task for Plant {
 }
 
 /// Time the control tasks need in one process (the in-process scheduler) for the mission
-/// `tasks` on the same plant, s: the reference the deployed chain must match.
-fn single_process_mission_time(robot: &Robot, tasks: Vec<MissionTask>) -> f64 {
+/// `tasks` on the same plant, s, and the (task index, phase) states the mission went through.
+fn single_process_mission(robot: &Robot, tasks: Vec<MissionTask>) -> (f64, Vec<(u32, u32)>) {
     let dt = DT.as_secs_f64();
     let mut scheduler = Scheduler::new(DT.as_nanos() as u64);
     let plant_spec = TaskSpec {
@@ -290,6 +292,7 @@ fn single_process_mission_time(robot: &Robot, tasks: Vec<MissionTask>) -> f64 {
         control_path: false,
         sim_only: true,
         host: motm_graph::Host::Process,
+        standby_of: None,
     };
     scheduler.add(Plant::at_rest(robot), &plant_spec, 1.0 / dt);
     let setup = ControlSetup {
@@ -301,6 +304,7 @@ fn single_process_mission_time(robot: &Robot, tasks: Vec<MissionTask>) -> f64 {
     let mut mission: Option<MissionState> = None;
     let mut commanded: Option<ArmVelocityCommand> = None;
     let mut t = 0.0;
+    let mut phases = Vec::new();
     loop {
         assert!(
             t < MISSION_TIMEOUT.as_secs_f64(),
@@ -314,8 +318,13 @@ fn single_process_mission_time(robot: &Robot, tasks: Vec<MissionTask>) -> f64 {
         if commanded.is_some() {
             t += dt;
         }
+        if let Some(phase) = mission.as_ref().map(phase_of)
+            && phases.last() != Some(&phase)
+        {
+            phases.push(phase);
+        }
         if mission.is_some_and(|m| m.phase == u32::from(convert::phase_code(Phase::Complete))) {
-            return t;
+            return (t, phases);
         }
     }
 }
@@ -344,7 +353,7 @@ fn run_pick_and_place(rate: &str) {
     let scenario_file = folder.join("scenario.toml");
     std::fs::write(&scenario_file, SCENARIO).unwrap();
     let scenario = Scenario::from_file(&scenario_file).unwrap();
-    let reference = single_process_mission_time(&robot, scenario.mission_tasks());
+    let (reference, reference_phases) = single_process_mission(&robot, scenario.mission_tasks());
     let mut plant = Plant::at_rest(&robot);
     let ipc = IpcConfig {
         prefix: format!("motmt{}_chain{rate}_", std::process::id()),
@@ -447,10 +456,9 @@ fn run_pick_and_place(rate: &str) {
             "mission complete after {mission_time:.2} s (single process: {reference:.2} s), {commands} arm commands, base at ({:.2}, {:.2}); phases {phases:?}",
             plant.base.x, plant.base.y
         );
-        // The equivalence criterion between the deployed and the in-process form.
-        assert!(
-            (mission_time - reference).abs() <= 0.05 * reference,
-            "mission took {mission_time:.2} s over processes, {reference:.2} s in one"
+        assert_eq!(
+            phases, reference_phases,
+            "the same tasks in one process went through other phases"
         );
         assert!(moving_commands > 100, "the base must have been driven");
         stack.terminate();

@@ -24,7 +24,7 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     if !(args.rate.is_finite() && args.rate > 0.0) {
-        eprintln!(
+        motm_bus::say!(
             "heartbeat-probe: --rate must be a finite number > 0, got {}",
             args.rate
         );
@@ -47,7 +47,7 @@ fn main() -> ExitCode {
         Ok(false) => ExitCode::SUCCESS,
         Ok(true) => ExitCode::from(3),
         Err(e) => {
-            eprintln!("heartbeat-probe {}: {e}", args.name);
+            motm_bus::say!("heartbeat-probe {}: {e}", args.name);
             ExitCode::FAILURE
         }
     }

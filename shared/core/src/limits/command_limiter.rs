@@ -12,6 +12,13 @@
 //! to `±V` and the brake-ahead margin holds at every step, the velocity never passes `±V`
 //! either. An axis without a finite jerk limit (the base joints) is only acceleration-limited.
 //!
+//! **Spread stops.** A stop (stale command or safe-stop) can be spread over a given time
+//! ([`CommandLimiter::set_stop_time`]): the target then falls linearly from the velocity at the
+//! stop's onset to zero over that time, instead of being zero at once, and the shaper follows
+//! it within the same limits. The arm driver uses it to stop together with a base that brakes
+//! more slowly, so the tool keeps its place in the world while both stop (a cube between the
+//! fingers is not swept away). 0 (the default) stops as fast as the limits allow.
+//!
 //! Violations: a command with the wrong length, a non-finite value or a velocity beyond the
 //! limit counts as one limit violation. Non-finite and wrong-length commands are ignored (the
 //! previous target stays); an over-limit velocity is clamped to the limit.
@@ -143,6 +150,12 @@ pub struct CommandLimiter {
     target: Vec<f64>,
     output: Vec<f64>,
     counters: LimiterCounters,
+    /// Time to spread the next stop over, s (0: as fast as the limits allow).
+    stop_time: f64,
+    /// The stop in progress: its duration and the time elapsed, s.
+    stop: Option<(f64, f64)>,
+    /// The output velocities at the onset of the stop in progress.
+    stop_from: Vec<f64>,
 }
 
 impl CommandLimiter {
@@ -189,7 +202,20 @@ impl CommandLimiter {
             target: vec![0.0; n],
             output: vec![0.0; n],
             counters: LimiterCounters::default(),
+            stop_time: 0.0,
+            stop: None,
+            stop_from: vec![0.0; n],
         })
+    }
+
+    /// Spreads a stop that starts from now on over `seconds` (see the module documentation);
+    /// a stop in progress keeps its time. Non-finite or negative values count as 0.
+    pub fn set_stop_time(&mut self, seconds: f64) {
+        self.stop_time = if seconds.is_finite() {
+            seconds.max(0.0)
+        } else {
+            0.0
+        };
     }
 
     /// Number of axes.
@@ -238,6 +264,7 @@ impl CommandLimiter {
             self.output[i] = state.velocity;
         }
         self.target.iter_mut().for_each(|t| *t = 0.0);
+        self.stop = None;
     }
 
     /// One step: takes in the new command (if any), decides the mode and moves every axis one
@@ -256,11 +283,30 @@ impl CommandLimiter {
             self.counters.stale_steps += 1;
             LimiterMode::Stale
         };
+        // Share of the onset velocity the stop's target keeps this step (1 while tracking).
+        let keep = if mode == LimiterMode::Tracking {
+            self.stop = None;
+            1.0
+        } else {
+            let (duration, elapsed) = match self.stop {
+                Some(stop) => stop,
+                None => {
+                    self.stop_from.copy_from_slice(&self.output);
+                    (self.stop_time, 0.0)
+                }
+            };
+            self.stop = Some((duration, elapsed + self.dt));
+            if duration > 0.0 {
+                (1.0 - (elapsed + self.dt) / duration).max(0.0)
+            } else {
+                0.0
+            }
+        };
         for i in 0..self.limits.len() {
             let target = if mode == LimiterMode::Tracking {
                 self.target[i]
             } else {
-                0.0
+                self.stop_from[i] * keep
             };
             self.state[i] = advance(self.state[i], target, &self.limits[i], self.dt);
             self.output[i] = self.state[i].velocity;

@@ -71,6 +71,16 @@ impl VelocityDriver {
         self.limiter.axes()
     }
 
+    /// The period of the command stream it expects, s.
+    pub fn command_period(&self) -> f64 {
+        self.limiter.config().command_period
+    }
+
+    /// Spreads the next stop over `seconds` (see [`CommandLimiter::set_stop_time`]).
+    pub fn set_stop_time(&mut self, seconds: f64) {
+        self.limiter.set_stop_time(seconds);
+    }
+
     /// Takes in one command stamped `stamp_ns` (call it for every command that arrived, oldest
     /// first: each is checked against the limits and counted; the newest is the target).
     pub fn receive(&mut self, stamp_ns: u64, velocity: &[f64]) {

@@ -294,6 +294,28 @@ pub fn flip_time(now_ns: u64, last_old_ns: u64, last_new_ns: u64, period_ns: u64
     (first + steps * period).max(now) as u64
 }
 
+/// The command gap a flip at `now_ns` would make, predicted from the controllers' last command
+/// stamps and `period_ns`: the longer of the old controller's silence so far and the wait for
+/// the new controller's next command. `None` while the new controller is late (silent for more
+/// than a period): when its next command comes is not known.
+pub fn predicted_gap(
+    now_ns: u64,
+    last_old_ns: u64,
+    last_new_ns: u64,
+    period_ns: u64,
+) -> Option<u64> {
+    let old_silence = now_ns.saturating_sub(last_old_ns);
+    let next_new = last_new_ns + period_ns;
+    (now_ns <= next_new).then(|| old_silence.max(next_new - now_ns))
+}
+
+/// Whether a flip at `now_ns` leaves a quarter period to spare below one period of gap
+/// ([`predicted_gap`]): room for the jitter of the commands still to come.
+pub fn flip_is_timely(now_ns: u64, last_old_ns: u64, last_new_ns: u64, period_ns: u64) -> bool {
+    predicted_gap(now_ns, last_old_ns, last_new_ns, period_ns)
+        .is_some_and(|gap| gap + period_ns / 4 <= period_ns)
+}
+
 /// Whether the last `count` intervals between the command `stamps` (in arrival order) are
 /// each at most one and a half `period_ns`: the controller is cycling steadily.
 pub fn steady(stamps: &[u64], period_ns: u64, count: usize) -> bool {
@@ -463,6 +485,30 @@ mod tests {
         assert!(gap.is_none());
         assert!(command_gap(&[], &new, 51 * MS, 100 * MS).is_none());
         assert!(command_gap(&old, &[], 51 * MS, 100 * MS).is_none());
+    }
+
+    #[test]
+    fn a_flip_is_timely_only_with_a_quarter_period_to_spare_on_both_sides() {
+        // Old at 100 ms, new at 102 ms, 5 ms period: the new one's next command is at 107 ms.
+        assert_eq!(
+            predicted_gap(104 * MS, 100 * MS, 102 * MS, 5 * MS),
+            Some(4 * MS)
+        );
+        assert_eq!(
+            predicted_gap(103 * MS, 100 * MS, 102 * MS, 5 * MS),
+            Some(4 * MS)
+        );
+        assert_eq!(
+            predicted_gap(103_500_000, 100 * MS, 102 * MS, 5 * MS),
+            Some(3_500_000)
+        );
+        assert!(flip_is_timely(103_500_000, 100 * MS, 102 * MS, 5 * MS));
+        // Just after the new command (its next is a period away) or long after the old one.
+        assert!(!flip_is_timely(102_100_000, 100 * MS, 102 * MS, 5 * MS));
+        assert!(!flip_is_timely(104 * MS, 100 * MS, 102 * MS, 5 * MS));
+        // The new controller late: nothing to predict.
+        assert_eq!(predicted_gap(108 * MS, 107 * MS, 102 * MS, 5 * MS), None);
+        assert!(!flip_is_timely(108 * MS, 107 * MS, 102 * MS, 5 * MS));
     }
 
     #[test]

@@ -6,8 +6,11 @@
 //! here as a stale source although the operating system still sees it alive.
 //!
 //! Choices:
-//! - **A source never seen is a fault.** Until every watched source has been heard from, the
-//!   robot stays safe-stopped (nothing moves before the control path is up anyway).
+//! - **A source never seen holds the robot, and is not a fault.** Until every watched source has
+//!   been heard from, safe-stop stays raised with [`SafetyFault::Starting`] (nothing moves before
+//!   the control path is up). A process still starting is not a lost heartbeat: start-up holds
+//!   are neither logged nor counted as safe-stops. A source heard once and then silent is lost,
+//!   at start-up too.
 //! - **Staleness** of a source is `stale_cycles` of its expected period without a sample.
 //!   Heartbeats come every `heartbeat_interval_ms` (the service loop's default 100 ms); command
 //!   streams every control period, so a hung resolver is caught within three control cycles.
@@ -17,7 +20,12 @@
 //!   (1 and 0) trip on any miss, as on a real-time kernel; a loaded development machine needs a
 //!   fraction (its stack config says so). A count that goes down (the process restarted) is a
 //!   new baseline.
-//! - **Priority** when several faults hold: lost heartbeat, then stale command, then deadline miss.
+//! - **Redundant sources** ([`Watchdog::redundant`]): the heartbeats of a task and its hot
+//!   standby count as one source. A fault of one member is no fault while another member of its
+//!   group has none: a dead primary resolver leaves its standby commanding, and stopping the
+//!   robot for it would defeat the standby. The command streams still have to stay fresh.
+//! - **Priority** when several faults hold: lost heartbeat, then stale command, then deadline
+//!   miss, then a source not started yet.
 
 use serde::Deserialize;
 
@@ -93,12 +101,26 @@ pub enum SourceKind {
 /// Why the watchdog raises safe-stop; the index names the source (order of [`Watchdog::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SafetyFault {
-    /// A heartbeat is stale or was never received.
+    /// A heartbeat was received and then went stale.
     HeartbeatLost(usize),
-    /// A command stream is stale or never started.
+    /// A command stream started and then went stale.
     StaleCommand(usize),
     /// A process reported new deadline misses.
     DeadlineMiss(usize),
+    /// A source has not been heard from yet (the stack is starting).
+    Starting(usize),
+}
+
+impl SafetyFault {
+    /// The index of the source at fault.
+    pub fn source(&self) -> usize {
+        match *self {
+            Self::HeartbeatLost(i)
+            | Self::StaleCommand(i)
+            | Self::DeadlineMiss(i)
+            | Self::Starting(i) => i,
+        }
+    }
 }
 
 /// State kept per watched source.
@@ -109,6 +131,8 @@ struct SourceState {
     last_misses: Option<u64>,
     last_cycles: u64,
     miss_until_ns: Option<u64>,
+    /// The redundant group the source belongs to, if any.
+    group: Option<usize>,
 }
 
 /// The watchdog's state over its watched sources.
@@ -131,6 +155,7 @@ impl Watchdog {
                     last_misses: None,
                     last_cycles: 0,
                     miss_until_ns: None,
+                    group: None,
                 })
                 .collect(),
         }
@@ -180,8 +205,45 @@ impl Watchdog {
         }
     }
 
-    /// Every fault holding at `now_ns`, by source.
+    /// Makes the sources `members` one redundant source: a fault of one of them is none while
+    /// another has no fault (a task and its hot standby). Unknown indices are ignored.
+    pub fn redundant(&mut self, members: &[usize]) {
+        let group = self
+            .sources
+            .iter()
+            .filter_map(|s| s.group)
+            .max()
+            .map_or(0, |g| g + 1);
+        for &index in members {
+            if let Some(source) = self.sources.get_mut(index) {
+                source.group = Some(group);
+            }
+        }
+    }
+
+    /// Every fault holding at `now_ns`, by source (a redundant group's only when all its
+    /// members have one).
     pub fn faults(&self, now_ns: u64) -> Vec<SafetyFault> {
+        let faults = self.source_faults(now_ns);
+        let faulty = |index: usize| faults.iter().any(|f| f.source() == index);
+        // A source whose group has a member without a fault.
+        let covered = |index: usize| {
+            self.sources[index].group.is_some_and(|group| {
+                self.sources
+                    .iter()
+                    .enumerate()
+                    .any(|(other, s)| other != index && s.group == Some(group) && !faulty(other))
+            })
+        };
+        faults
+            .iter()
+            .copied()
+            .filter(|fault| !covered(fault.source()))
+            .collect()
+    }
+
+    /// Every fault of every source on its own.
+    fn source_faults(&self, now_ns: u64) -> Vec<SafetyFault> {
         let mut faults = Vec::new();
         for (index, source) in self.sources.iter().enumerate() {
             let timeout_ns = match source.kind {
@@ -190,9 +252,11 @@ impl Watchdog {
                     u64::from(self.config.stale_cycles).saturating_mul(period_ns)
                 }
             };
-            let stale = source
-                .last_stamp_ns
-                .is_none_or(|stamp| now_ns.saturating_sub(stamp) > timeout_ns);
+            let Some(stamp) = source.last_stamp_ns else {
+                faults.push(SafetyFault::Starting(index));
+                continue;
+            };
+            let stale = now_ns.saturating_sub(stamp) > timeout_ns;
             match source.kind {
                 SourceKind::Heartbeat if stale => faults.push(SafetyFault::HeartbeatLost(index)),
                 SourceKind::Command { .. } if stale => {
@@ -215,6 +279,7 @@ impl Watchdog {
                 SafetyFault::HeartbeatLost(i) => (0, *i),
                 SafetyFault::StaleCommand(i) => (1, *i),
                 SafetyFault::DeadlineMiss(i) => (2, *i),
+                SafetyFault::Starting(i) => (3, *i),
             })
     }
 }
@@ -246,14 +311,46 @@ mod tests {
     }
 
     #[test]
-    fn unseen_sources_hold_safe_stop_until_all_are_heard() {
+    fn a_redundant_pair_faults_only_when_both_members_do() {
         let mut w = watchdog();
-        assert_eq!(w.verdict(0), Some(SafetyFault::HeartbeatLost(0)));
+        w.redundant(&[0, 1]);
+        // Only one of the pair has started: the pair is up.
+        w.heartbeat(0, 0, 0, 0, 0);
+        w.command(2, 0);
+        assert_eq!(w.verdict(MS), None);
+        feed_all(&mut w, 10 * MS, 0);
+        // Member 0 goes silent (killed): no fault while member 1 beats.
+        for t in (20..=600).step_by(10) {
+            w.heartbeat(1, t * MS, t * 100, 0, t * MS);
+            w.command(2, t * MS);
+        }
+        assert_eq!(w.verdict(600 * MS), None);
+        // Member 1 goes silent as well (the commands still come): both are lost.
+        for t in (600..=1000).step_by(5) {
+            w.command(2, t * MS);
+        }
+        assert_eq!(w.verdict(1000 * MS), Some(SafetyFault::HeartbeatLost(0)));
+        assert!(w.faults(1000 * MS).contains(&SafetyFault::HeartbeatLost(1)));
+    }
+
+    #[test]
+    fn unseen_sources_hold_safe_stop_as_starting_until_all_are_heard() {
+        let mut w = watchdog();
+        assert_eq!(w.verdict(0), Some(SafetyFault::Starting(0)));
         w.heartbeat(0, 0, 0, 0, 0);
         w.heartbeat(1, 0, 0, 0, 0);
-        assert_eq!(w.verdict(MS), Some(SafetyFault::StaleCommand(2)));
+        assert_eq!(w.verdict(MS), Some(SafetyFault::Starting(2)));
         w.command(2, MS);
         assert_eq!(w.verdict(2 * MS), None);
+    }
+
+    #[test]
+    fn a_source_heard_once_and_then_silent_is_lost_while_others_still_start() {
+        let mut w = watchdog();
+        w.heartbeat(0, 0, 0, 0, 0);
+        // Source 1 and the commands are still starting; source 0 goes silent.
+        assert_eq!(w.verdict(300 * MS), Some(SafetyFault::Starting(1)));
+        assert_eq!(w.verdict(301 * MS), Some(SafetyFault::HeartbeatLost(0)));
     }
 
     #[test]

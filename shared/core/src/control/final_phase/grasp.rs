@@ -22,6 +22,9 @@
 //! `closed_opening` on its first cycle belongs to a final-phase process restarted after the
 //! closure (the state on the bus, the measured opening, says so): it resumes by lifting from
 //! the grasp point instead of opening the hand to approach again, which would drop the object.
+//! One that finds the hand part-closed (below `open_opening`) with the tool at the grasp point
+//! (within twice ε_g: a task's final phase starts much farther out) was restarted during the
+//! closure: it goes on closing.
 
 use nalgebra::Vector3;
 
@@ -116,6 +119,13 @@ impl GraspController {
             && input.gripper_opening <= self.config.closed_opening
         {
             self.start_lifting(input, grasp_point);
+        }
+        if first_cycle
+            && self.stage == FinalPhaseStage::Approach
+            && input.gripper_opening < self.config.open_opening
+            && (grasp_point - tool).norm() < 2.0 * self.config.close_distance
+        {
+            self.enter(FinalPhaseStage::Closing, input.t);
         }
         if self.stage == FinalPhaseStage::Approach
             && (grasp_point - tool).norm() < self.config.close_distance
@@ -453,6 +463,32 @@ mod tests {
         assert_eq!(fresh.step(&input).gripper, GripperCommand::Open);
         input.gripper_opening = CUBE_WIDTH;
         assert_eq!(fresh.step(&input).stage, FinalPhaseStage::Approach);
+    }
+
+    #[test]
+    fn a_restarted_controller_finding_the_hand_closing_at_the_grasp_point_goes_on_closing() {
+        let config = super::super::FinalPhaseConfig::default();
+        let at_grasp = Isometry3::new(CUBE + Vector3::new(0.0, 0.0, 0.005), Vector3::x() * PI);
+        let mut input = KinematicWorld::new(at_grasp, 0.3, TargetPath::Static(CUBE), DT).input();
+        // Part-closed fingers around the cube: the process restarted during the closure.
+        input.gripper_opening = 0.05;
+        let mut restarted = GraspController::new(config.servo, config.grasp);
+        let out = restarted.step(&input);
+        assert_eq!(
+            (out.stage, out.gripper),
+            (FinalPhaseStage::Closing, GripperCommand::Close)
+        );
+        // A task's final phase starts well away from the grasp point: a hand still opening
+        // there (after a drop) is approached with as usual.
+        let far = Isometry3::new(CUBE + Vector3::new(-0.1, 0.0, 0.05), Vector3::x() * PI);
+        let mut input = KinematicWorld::new(far, 0.3, TargetPath::Static(CUBE), DT).input();
+        input.gripper_opening = 0.05;
+        let mut fresh = GraspController::new(config.servo, config.grasp);
+        let out = fresh.step(&input);
+        assert_eq!(
+            (out.stage, out.gripper),
+            (FinalPhaseStage::Approach, GripperCommand::Open)
+        );
     }
 
     #[test]

@@ -449,6 +449,10 @@ pub struct GraspConfig {
     /// The grasp counts as closed when the finger opening falls to this, m (0.032: the 30 mm
     /// cube plus 2 mm).
     pub closed_opening: f64,
+    /// The hand counts as open above this opening, m (0.07: the Franka Hand opens to 0.08, the
+    /// grippers of the other robots wider). A controller whose first cycle finds the hand less
+    /// open than this with the tool at the grasp point was restarted during the closure.
+    pub open_opening: f64,
     /// Lift anyway after closing this long, s, in case the fingers stall above
     /// `closed_opening` (1.0; the hand needs about 0.5 s to close).
     pub closing_timeout: f64,
@@ -466,6 +470,7 @@ impl Default for GraspConfig {
             grasp_offset: [0.0; 3],
             descent_slope: 1.0,
             closed_opening: 0.032,
+            open_opening: 0.07,
             closing_timeout: 1.0,
             lift_height: 0.1,
             lift_tolerance: 0.01,
@@ -481,6 +486,7 @@ impl GraspConfig {
                 ("grasp.close_distance", self.close_distance),
                 ("grasp.close_max_tilt", self.close_max_tilt),
                 ("grasp.closed_opening", self.closed_opening),
+                ("grasp.open_opening", self.open_opening),
                 ("grasp.closing_timeout", self.closing_timeout),
                 ("grasp.lift_height", self.lift_height),
                 ("grasp.lift_tolerance", self.lift_tolerance),

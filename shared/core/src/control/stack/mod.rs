@@ -11,11 +11,10 @@
 //! - **Target of the current task**: for a pick or a press ([`TaskKind::is_perceived`]),
 //!   perception's estimate once one has been published for that task; otherwise the mission's
 //!   position of the target (the runner's rule). An estimate belongs to the current task when
-//!   perception stamped it no earlier than the moment this process first saw the task
-//!   ([`TargetSelector`]): perception resets on a new task and publishes only during picks and
-//!   presses, and picks are never back to back (a place lies between), so an estimate of the
-//!   previous pick is always older than that moment. Presses come after every place; two
-//!   presses in a row rely on the same stamp rule alone.
+//!   perception made it for that task: each estimate carries the index of the task perception
+//!   was tracking ([`TargetSelector`]). This holds for a process restarted mid-task too (a
+//!   final-phase controller restarted during a grasp sees perception's estimate of the moving
+//!   cube at once, not the mission's nominal position, which is where the cube started).
 //! - **Reach aim** and **resting gripper** are the functions [`crate::on_the_move`] uses
 //!   ([`reach_aim`], [`resting_gripper`]), so both forms agree.
 //! - **Twist rate limit** ([`crate::on_the_move::TwistRateLimit`]) is applied by the QP
@@ -154,6 +153,8 @@ impl MissionLatch {
 pub struct PerceivedTarget {
     /// The estimate.
     pub estimate: TargetEstimate,
+    /// The mission task perception made it for.
+    pub task_index: usize,
     /// Monotonic time perception published it, ns.
     pub stamp_ns: u64,
     /// Capture stamp of the image the estimate's position came from, ns.
@@ -171,41 +172,28 @@ pub struct SelectedTarget {
 
 /// Picks the current task's target from the mission and perception (see the module doc).
 #[derive(Debug, Clone, Copy, Default)]
-pub struct TargetSelector {
-    /// The task seen last and the monotonic time it was first seen, ns.
-    task: Option<(usize, u64)>,
-}
+pub struct TargetSelector;
 
 impl TargetSelector {
-    /// The target of `mission`'s current task at monotonic time `now_ns`, given perception's
-    /// latest estimate (if any).
+    /// The target of `mission`'s current task, given perception's latest estimate (if any).
     pub fn select(
-        &mut self,
+        &self,
         mission: &MissionView,
-        now_ns: u64,
         perceived: Option<&PerceivedTarget>,
     ) -> TargetEstimate {
-        self.select_with_source(mission, now_ns, perceived).target
+        self.select_with_source(mission, perceived).target
     }
 
     /// [`TargetSelector::select`], also saying which image the target came from.
     pub fn select_with_source(
-        &mut self,
+        &self,
         mission: &MissionView,
-        now_ns: u64,
         perceived: Option<&PerceivedTarget>,
     ) -> SelectedTarget {
-        let seen_since = match self.task {
-            Some((index, since)) if index == mission.task_index => since,
-            _ => {
-                self.task = Some((mission.task_index, now_ns));
-                now_ns
-            }
-        };
         match perceived {
             Some(p)
                 if mission.current_kind().is_some_and(TaskKind::is_perceived)
-                    && p.stamp_ns >= seen_since =>
+                    && p.task_index == mission.task_index =>
             {
                 SelectedTarget {
                     target: p.estimate,

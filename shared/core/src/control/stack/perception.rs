@@ -37,6 +37,8 @@ pub struct PerceptionReport {
     pub estimate: ObjectEstimate,
     /// Capture stamp of the image that gave the estimate's position, ns.
     pub image_stamp_ns: u64,
+    /// The mission task the estimate is for.
+    pub task_index: usize,
 }
 
 /// Perception plus the tool-pose history and the current task.
@@ -123,6 +125,7 @@ impl PerceptionCycle {
         estimate.valid.then_some(PerceptionReport {
             estimate,
             image_stamp_ns: self.fix_stamp_ns,
+            task_index: mission.task_index,
         })
     }
 }

@@ -6,8 +6,16 @@
 //!   controller's in the final phase (any final-phase controller's until an active-controller
 //!   id has been received), for the current task and no older than `max_twist_age`.
 //! - **Phase changes**: the controller of the new phase needs a cycle to notice the change;
-//!   meanwhile the freshest twist of either controller is used (counted as a fallback), so the
-//!   command does not drop to zero at every hand-over.
+//!   meanwhile (up to `max_twist_age` after the change) the freshest twist of either
+//!   controller is used (counted as a fallback), so the command does not drop to zero at every
+//!   hand-over.
+//! - **The active phase's controller is gone** (no fresh twist of it after the hand-over
+//!   window, or no twist at all: it died or hangs, and the supervisor restarts it): for up to
+//!   `max_hold` the tool holds its place relative to the target ([`TwistSource::Hold`]: the
+//!   twist is the target's velocity), while the base goes on to its target; after that, an
+//!   all-zero command. Neither the other phase's twist, which aims elsewhere (the reacher's,
+//!   above the cube, during a grasp), nor a stop of the arm alone, which would let the moving
+//!   base sweep the tool through the cube, keeps the object.
 //! - **Twist rate limit and e_t cap** as in [`crate::on_the_move`]: the chosen twist moves from
 //!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`], and e_t is
 //!   capped at `max_position_error`. After the mission the reacher's twist (arm at its ready
@@ -17,9 +25,14 @@
 //!   base command resolved on the previous cycle.
 //! - **Base target rate limit** as in [`crate::on_the_move`]
 //!   ([`crate::base_command_rate`]).
-//! - **Missing or stale input** (no mission, joint state or odometry older
-//!   than `max_state_age`, no fresh twist at all): an all-zero command, which the drivers ramp
-//!   to within their limits. A missing or stale base target is replaced by a zero target.
+//! - **Missing or stale input** (no mission, no twist for longer than `max_hold`): an
+//!   all-zero command, which the drivers ramp to within their limits. A missing or stale base
+//!   target is replaced by a zero target.
+//! - **Stale robot state** (joint state or odometry older than `max_state_age`, e.g. a driver
+//!   that died): no command at all ([`TwistSource::Withheld`]). Where the robot is is not known,
+//!   so no zero is commanded either: the drivers see their command stream stop and stop the way
+//!   they do for any lost stream, the arm spread over the base's braking, so that the tool
+//!   keeps its place in the world while the base, still moving, brakes.
 
 use serde::Deserialize;
 
@@ -42,6 +55,9 @@ pub struct ResolverCycleConfig {
     pub max_twist_age: f64,
     /// Oldest joint state or odometry still used, s (default 0.05).
     pub max_state_age: f64,
+    /// Longest the tool holds on the target without the active phase's twist, s (default
+    /// 0.5: a restart of the controller with margin).
+    pub max_hold: f64,
 }
 
 impl Default for ResolverCycleConfig {
@@ -49,6 +65,7 @@ impl Default for ResolverCycleConfig {
         Self {
             max_twist_age: 0.05,
             max_state_age: 0.05,
+            max_hold: 0.5,
         }
     }
 }
@@ -107,14 +124,21 @@ pub enum TwistSource {
     ActivePhase,
     /// The freshest twist of either controller, during a hand-over.
     Fallback,
+    /// The active phase's controller sent nothing fresh after the hand-over window: the tool
+    /// moves with the target.
+    Hold,
     /// Nothing usable: the command is all zero.
     Stopped,
+    /// The robot's state is stale: no command is sent (the output's command is all zero and
+    /// must not be published).
+    Withheld,
 }
 
 /// What the QP resolver publishes each cycle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ResolverCycleOutput {
-    /// The command (all zero when `source` is [`TwistSource::Stopped`]).
+    /// The command (all zero when `source` is [`TwistSource::Stopped`] or
+    /// [`TwistSource::Withheld`]; not to be sent for the latter).
     pub resolved: ResolverOutput,
     /// The twist that was resolved.
     pub twist: Twist,
@@ -141,6 +165,11 @@ pub struct ResolverCycle {
     base_rate: BaseCommandRate,
     fallbacks: u64,
     stops: u64,
+    holds: u64,
+    /// The task and phase of the last cycle, and the cycles run since they changed.
+    phase_seen: Option<(usize, Phase, u64)>,
+    /// Cycles in a row without the active phase's twist.
+    missing: u64,
 }
 
 impl ResolverCycle {
@@ -164,7 +193,26 @@ impl ResolverCycle {
             limits,
             fallbacks: 0,
             stops: 0,
+            holds: 0,
+            phase_seen: None,
+            missing: 0,
         }
+    }
+
+    /// Cycles that held the tool on the target for want of the active phase's twist.
+    pub fn holds(&self) -> u64 {
+        self.holds
+    }
+
+    /// Counts the cycles since the mission's task or phase last changed; whether this cycle is
+    /// still in the hand-over window after a change.
+    fn in_handover(&mut self, mission: &MissionView) -> bool {
+        let cycles = match self.phase_seen {
+            Some((task, phase, n)) if task == mission.task_index && phase == mission.phase => n + 1,
+            _ => 0,
+        };
+        self.phase_seen = Some((mission.task_index, mission.phase, cycles));
+        cycles as f64 * self.dt <= self.limits.max_twist_age
     }
 
     /// The QP itself (limits, error count).
@@ -177,7 +225,8 @@ impl ResolverCycle {
         self.fallbacks
     }
 
-    /// Cycles that sent an all-zero command for want of usable input.
+    /// Cycles that resolved nothing for want of usable input: an all-zero command, or none
+    /// at all on a stale robot state.
     pub fn stops(&self) -> u64 {
         self.stops
     }
@@ -190,11 +239,15 @@ impl ResolverCycle {
         fresh && sender_ok && sample.twist.iter().all(|x| x.is_finite())
     }
 
-    /// Chooses the twist to resolve (see the module doc).
+    /// Chooses the twist to resolve (see the module doc); `handover` is whether the phase
+    /// changed less than the hand-over window ago, `missing_s` how long the active phase's
+    /// twist has been missing before this cycle.
     pub fn select_twist(
         &self,
         mission: &MissionView,
         input: &ResolverCycleInput<'_>,
+        handover: bool,
+        missing_s: f64,
     ) -> Option<(Twist, TwistSource)> {
         let usable: Vec<TwistSample> = [input.reach, input.final_twist]
             .into_iter()
@@ -212,10 +265,13 @@ impl ResolverCycle {
         {
             return Some((s.twist, TwistSource::ActivePhase));
         }
-        usable
-            .iter()
-            .min_by_key(|s| s.age_ns)
-            .map(|s| (s.twist, TwistSource::Fallback))
+        if handover && let Some(s) = usable.iter().min_by_key(|s| s.age_ns) {
+            return Some((s.twist, TwistSource::Fallback));
+        }
+        let v = input.target.velocity;
+        let hold = Twist::new(v.x, v.y, v.z, 0.0, 0.0, 0.0);
+        (missing_s < self.limits.max_hold && hold.iter().all(|x| x.is_finite()))
+            .then_some((hold, TwistSource::Hold))
     }
 
     /// The all-zero command.
@@ -244,20 +300,31 @@ impl ResolverCycle {
         let (Some(mission), Some(state)) = (input.mission, input.state) else {
             return self.stop(f64::INFINITY);
         };
-        if state.age_ns as f64 > max_state_age_ns
-            || state.arm_q.len() != self.robot.arm_dof()
-            || state.arm_q.iter().any(|q| !q.is_finite())
-        {
+        if state.arm_q.len() != self.robot.arm_dof() || state.arm_q.iter().any(|q| !q.is_finite()) {
             return self.stop(f64::INFINITY);
+        }
+        if state.age_ns as f64 > max_state_age_ns {
+            let mut out = self.stop(f64::INFINITY);
+            out.source = TwistSource::Withheld;
+            return out;
         }
         let tool = self.robot.tool_pose(&state.base, state.arm_q);
         let aim = reach_aim(mission.kind, &input.target, &self.config);
         let tool_to_target = (tool.translation.vector - aim.position).norm();
-        let Some((twist, source)) = self.select_twist(&mission, input) else {
+        let handover = self.in_handover(&mission);
+        let missing_s = self.missing as f64 * self.dt;
+        let chosen = self.select_twist(&mission, input, handover, missing_s);
+        self.missing = match chosen {
+            Some((_, TwistSource::ActivePhase)) => 0,
+            _ => self.missing + 1,
+        };
+        let Some((twist, source)) = chosen else {
             return self.stop(tool_to_target);
         };
-        if source == TwistSource::Fallback {
-            self.fallbacks += 1;
+        match source {
+            TwistSource::Fallback => self.fallbacks += 1,
+            TwistSource::Hold => self.holds += 1,
+            _ => {}
         }
         let twist = self
             .config

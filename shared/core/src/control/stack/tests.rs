@@ -87,68 +87,48 @@ fn latch_keeps_the_last_task_after_completion_and_fills_in_run_out_points() {
 
 #[test]
 fn selector_uses_perception_only_for_the_current_pick_or_press() {
-    let mut selector = TargetSelector::default();
+    let selector = TargetSelector;
     let seen = PerceivedTarget {
         estimate: TargetEstimate {
             position: Vector3::new(2.05, 0.02, 0.45),
             velocity: Vector3::new(0.03, 0.0, 0.0),
         },
+        task_index: 0,
         stamp_ns: 1_000 * MS,
         image_stamp_ns: 960 * MS,
     };
-    // The pick starts at t = 900 ms: the estimate stamped at 1000 ms belongs to it.
+    // The pick (task 0): the mission's position until perception has an estimate of task 0.
     let pick = view(0, TaskKind::Pick, Phase::Reach);
-    assert_eq!(selector.select(&pick, 900 * MS, None).position, pick.target);
-    assert_eq!(
-        selector.select(&pick, 1_010 * MS, Some(&seen)),
-        seen.estimate
-    );
-    let source = selector.select_with_source(&pick, 1_015 * MS, Some(&seen));
+    assert_eq!(selector.select(&pick, None).position, pick.target);
+    assert_eq!(selector.select(&pick, Some(&seen)), seen.estimate);
+    let source = selector.select_with_source(&pick, Some(&seen));
     assert_eq!(source.image_stamp_ns, Some(960 * MS));
     // The place: the mission's container position, whatever perception last said.
     let mut place = view(1, TaskKind::Place, Phase::Reach);
     place.target = Vector3::new(4.0, 0.0, 0.35);
-    let chosen = selector.select_with_source(&place, 1_020 * MS, Some(&seen));
+    let chosen = selector.select_with_source(&place, Some(&seen));
     assert_eq!(chosen.target, TargetEstimate::fixed(place.target));
     assert_eq!(chosen.image_stamp_ns, None);
     // A later task of the mission (its index 2 or 3 of 4) at `target`: the mission's target
-    // while perception's latest estimate is `seen` (made before the task started), perception's
-    // once it publishes one stamped `fresh_ms`.
-    let mut takes_only_a_fresh_estimate =
-        |kind: TaskKind, task_index: usize, target: Vector3<f64>, asked_ms: u64, fresh_ms: u64| {
-            let mut task = view(task_index, kind, Phase::Reach);
-            task.task_count = 4;
-            task.target = target;
-            assert_eq!(
-                selector.select(&task, asked_ms * MS, Some(&seen)),
-                TargetEstimate::fixed(target)
-            );
-            let fresh = PerceivedTarget {
-                stamp_ns: fresh_ms * MS,
-                ..seen
-            };
-            assert_eq!(
-                selector.select(&task, (fresh_ms + 10) * MS, Some(&fresh)),
-                fresh.estimate
-            );
-        };
-    // A press: perception's estimate of the button cap once it is fresh (the mission's button
-    // position is in the world frame, the tools' poses in the drifting odometry frame).
-    takes_only_a_fresh_estimate(
-        TaskKind::PressButton,
-        3,
-        Vector3::new(6.0, 0.0, 0.5),
-        1_030,
-        1_040,
-    );
-    // A later pick ignores the previous pick's estimate until perception publishes anew.
-    takes_only_a_fresh_estimate(
-        TaskKind::Pick,
-        2,
-        Vector3::new(6.0, 1.0, 0.45),
-        5_000,
-        5_030,
-    );
+    // while perception's latest estimate is of another task (`seen`, task 0), perception's
+    // once it publishes one for this task, however old the process that asks (a restarted
+    // one included).
+    let takes_only_its_own_estimate = |kind: TaskKind, task_index: usize, target: Vector3<f64>| {
+        let mut task = view(task_index, kind, Phase::Reach);
+        task.task_count = 4;
+        task.target = target;
+        assert_eq!(
+            selector.select(&task, Some(&seen)),
+            TargetEstimate::fixed(target)
+        );
+        let own = PerceivedTarget { task_index, ..seen };
+        assert_eq!(selector.select(&task, Some(&own)), own.estimate);
+    };
+    // A press: perception's estimate of the button cap (the mission's button position is in
+    // the world frame, the tools' poses in the drifting odometry frame).
+    takes_only_its_own_estimate(TaskKind::PressButton, 3, Vector3::new(6.0, 0.0, 0.5));
+    // A later pick ignores the previous pick's estimate.
+    takes_only_its_own_estimate(TaskKind::Pick, 2, Vector3::new(6.0, 1.0, 0.45));
 }
 
 #[test]
@@ -332,37 +312,59 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         (reach_twist, TwistSource::Fallback)
     );
     assert_eq!(resolver.fallbacks(), 1);
-    // Every twist stale: all-zero command.
+    // The active controller stays silent past the hand-over window (50 ms, ten cycles): the
+    // tool holds its place relative to the target, moving with it.
+    input.target = TargetEstimate {
+        position: mission.target,
+        velocity: nalgebra::Vector3::new(0.1, 0.0, 0.0),
+    };
+    let sources: Vec<TwistSource> = (0..12).map(|_| resolver.step(&input).source).collect();
+    assert_eq!(sources[..9], [TwistSource::Fallback; 9], "{sources:?}");
+    assert_eq!(sources[11], TwistSource::Hold, "{sources:?}");
+    assert_eq!(
+        resolver.step(&input).twist,
+        Twist::new(0.1, 0.0, 0.0, 0.0, 0.0, 0.0)
+    );
+    assert!(resolver.holds() >= 2);
+    input.target = TargetEstimate::fixed(mission.target);
+    // Every twist stale: the hold goes on, up to max_hold (0.5 s in all), then an all-zero
+    // command.
     input.active_controller = None;
     input.reach.as_mut().unwrap().age_ns = 60 * MS;
     input.final_twist.as_mut().unwrap().age_ns = 60 * MS;
+    let sources: Vec<TwistSource> = (0..100).map(|_| resolver.step(&input).source).collect();
+    let held = sources.iter().filter(|s| **s == TwistSource::Hold).count();
+    assert!(
+        held > 80 && sources[99] == TwistSource::Stopped,
+        "{sources:?}"
+    );
     let out = resolver.step(&input);
     assert_eq!(out.source, TwistSource::Stopped);
     assert!(out.resolved.arm_qd.iter().all(|v| *v == 0.0));
     assert_eq!(out.resolved.base, BaseVelocity::default());
-    // A stale joint state stops too, even with fresh twists.
+    // A stale robot state withholds the command, even with fresh twists.
     input.final_twist.as_mut().unwrap().age_ns = MS;
     input.state.as_mut().unwrap().age_ns = 80 * MS;
-    assert_eq!(resolver.step(&input).source, TwistSource::Stopped);
+    assert_eq!(resolver.step(&input).source, TwistSource::Withheld);
     // After the mission the reacher's twist (for the task index past the last) is active.
     input.state.as_mut().unwrap().age_ns = MS;
     let mission = input.mission.as_mut().unwrap();
     mission.phase = Phase::Complete;
     mission.task_index = 2;
     input.reach = Some(sample(reach_twist, 2, Phase::Reach, MS));
+    let stops = resolver.stops();
     let out = resolver.step(&input);
     assert_eq!(
         (out.twist, out.source),
         (reach_twist, TwistSource::ActivePhase)
     );
-    assert_eq!(resolver.stops(), 2);
+    assert_eq!(resolver.stops(), stops);
     // No mission at all: stop.
     input.mission = None;
     assert_eq!(resolver.step(&input).source, TwistSource::Stopped);
-    assert_eq!(resolver.stops(), 3);
+    assert_eq!(resolver.stops(), stops + 1);
 }
 
-/// Tool-to-target distance of Frankie at the origin with joints `q`.
 /// Tool-to-target distance of Frankie at the origin with joints `q`.
 fn robot_tool_distance(q: &[f64], mission: &MissionView) -> f64 {
     let tool = frankie().tool_pose(&BasePose::default(), q);
