@@ -55,7 +55,19 @@ pub struct PerceptionConfig {
     /// A blob whose fix is farther than this from the prior (the last estimate, predicted to
     /// now, or the hint) is another object and is ignored, m. 0.3 m: a cube moving at 3 cm/s
     /// stays well inside it between fixes, while cubes already placed (metres away) are out.
+    /// A blob within this distance of the last fix is accepted too, so that a wrong velocity
+    /// (whose prediction runs away) can never lock the object out.
     pub max_prior_distance: f64,
+    /// How many standard errors a fitted velocity must exceed to be believed. The fit's
+    /// standard error comes from the residuals of the fixes about the fitted line; the velocity
+    /// is shrunk by `1 − (k·se/|v|)²` (to zero below `k·se`). Fixes of a far object at a
+    /// grazing angle scatter by centimetres (a pixel of centroid is `range²/height` metres per
+    /// radian along the ray), and a line through a few of them would otherwise report a static
+    /// cube as moving at metres per second. Default 2.
+    pub velocity_significance: f64,
+    /// Fastest an object is believed to move, m/s: a faster fitted velocity is scaled down to
+    /// it. Default 0.5 (objects on a table, well above the 30 mm/s of the moving cubes).
+    pub max_object_speed: f64,
 }
 
 impl Default for PerceptionConfig {
@@ -68,6 +80,8 @@ impl Default for PerceptionConfig {
             min_velocity_span: 0.1,
             max_range: 5.0,
             max_prior_distance: 0.3,
+            velocity_significance: 2.0,
+            max_object_speed: 0.5,
         }
     }
 }
@@ -215,14 +229,26 @@ impl Perception {
             return None;
         }
         self.label_blobs(input.width as usize, input.height as usize);
-        let prior = if self.estimate.valid {
-            Some(
-                self.estimate
-                    .target()
-                    .predict(input.stamp - self.estimate.stamp),
-            )
+        // The prediction from the last estimate and the last fix itself (or the hint before
+        // the first fix): a blob near either is the object.
+        let priors = if self.estimate.valid {
+            [
+                Some(
+                    self.estimate
+                        .target()
+                        .predict(input.stamp - self.estimate.stamp),
+                ),
+                Some(self.estimate.position),
+            ]
         } else {
-            input.target_hint
+            [input.target_hint, None]
+        };
+        let distance = |fix: Vector3<f64>| {
+            priors
+                .iter()
+                .flatten()
+                .map(|p| (fix - p).norm())
+                .reduce(f64::min)
         };
         let mut best: Option<(f64, Vector3<f64>)> = None;
         for blob in self
@@ -236,9 +262,9 @@ impl Perception {
             };
             // Nearest to the prior wins (blobs too far from it are other cubes, e.g. ones
             // already in a container); without a prior, the largest blob.
-            let score = match prior {
-                Some(p) if (fix - p).norm() > self.config.max_prior_distance => continue,
-                Some(p) => (fix - p).norm(),
+            let score = match distance(fix) {
+                Some(d) if d > self.config.max_prior_distance => continue,
+                Some(d) => d,
                 None => -(blob.pixels as f64),
             };
             if best.is_none_or(|(s, _)| score < s) {
@@ -349,11 +375,12 @@ impl Perception {
         self.estimate.valid = true;
     }
 
-    /// Slope of the least-squares line through the fixes in the window, if they span long enough.
+    /// Slope of the least-squares line through the fixes in the window, if they span long enough
+    /// (and are at least three), shrunk by its significance and capped at `max_object_speed`.
     fn fit_velocity(&self) -> Option<Vector3<f64>> {
         let (first, _) = *self.fixes.front()?;
         let (last, _) = *self.fixes.back()?;
-        if last - first < self.config.min_velocity_span {
+        if last - first < self.config.min_velocity_span || self.fixes.len() < 3 {
             return None;
         }
         let n = self.fixes.len() as f64;
@@ -365,7 +392,26 @@ impl Perception {
             stt += dt * dt;
             stp += dt * (p - mean_p);
         }
-        let velocity = stp / stt;
+        let slope = stp / stt;
+        // The residuals about the line give the slope's standard error.
+        let residual: f64 = self
+            .fixes
+            .iter()
+            .map(|&(t, p)| (p - mean_p - (t - first - mean_t) * slope).norm_squared())
+            .sum();
+        let standard_error = (residual / (n - 2.0) / stt).sqrt();
+        let speed = slope.norm();
+        let significant = if speed > 0.0 {
+            (1.0 - (self.config.velocity_significance * standard_error / speed).powi(2)).max(0.0)
+        } else {
+            0.0
+        };
+        let cap = if speed * significant > self.config.max_object_speed {
+            self.config.max_object_speed / (speed * significant)
+        } else {
+            1.0
+        };
+        let velocity = slope * (significant * cap);
         velocity.iter().all(|v| v.is_finite()).then_some(velocity)
     }
 }
@@ -517,5 +563,65 @@ mod tests {
         // Time going backwards restarts the window; the velocity is held until it spans enough.
         perception.record_fix(0.0, Vector3::zeros());
         assert!((perception.estimate().velocity.x - 0.1).abs() < 1e-9);
+    }
+
+    #[test]
+    fn scattered_fixes_of_a_static_object_give_no_velocity() {
+        // A far cube at a grazing angle: fixes scattered by ±12 cm about x = 6.5 (the pattern of
+        // a deployed run's first fixes), 30 Hz. The plain slope of the first three is about
+        // 1.9 m/s.
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let scatter = [
+            -0.07, -0.13, 0.11, 0.0, 0.08, -0.1, 0.12, -0.04, 0.05, -0.12,
+        ];
+        for (k, dx) in scatter.iter().enumerate() {
+            let t = k as f64 * 0.035;
+            perception.record_fix(t, Vector3::new(6.5 + dx, 1.0, 0.45));
+            let v = perception.estimate().velocity;
+            assert!(v.norm() < 0.25, "fix {k}: {v:?}");
+        }
+        let mut plain = PerceptionConfig::default();
+        plain.velocity_significance = 0.0;
+        plain.max_object_speed = f64::INFINITY;
+        let mut unshrunk = Perception::new(plain, calibration());
+        for (k, dx) in scatter.iter().take(3).enumerate() {
+            unshrunk.record_fix(k as f64 * 0.05, Vector3::new(6.5 + dx, 1.0, 0.45));
+        }
+        assert!(unshrunk.estimate().velocity.norm() > 1.0);
+    }
+
+    #[test]
+    fn a_clean_moving_fix_stream_keeps_its_velocity_and_speed_is_capped() {
+        // 30 mm/s with 1 mm of noise: well above its standard error, so barely shrunk.
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let noise = [0.001, -0.001, 0.0005, -0.0005, 0.0];
+        for k in 0..30 {
+            let t = k as f64 / 30.0;
+            let x = 0.03 * t + noise[k % noise.len()];
+            perception.record_fix(t, Vector3::new(x, 0.0, 0.0));
+        }
+        let v = perception.estimate().velocity;
+        assert!((v.x - 0.03).abs() < 0.005, "{v:?}");
+        // A clean line faster than any object on a table is scaled down to the cap.
+        let mut fast = Perception::new(PerceptionConfig::default(), calibration());
+        for k in 0..30 {
+            let t = k as f64 / 30.0;
+            fast.record_fix(t, Vector3::new(3.0 * t, 0.0, 0.0));
+        }
+        let v = fast.estimate().velocity;
+        assert!((v.norm() - 0.5).abs() < 1e-9 && v.x > 0.0, "{v:?}");
+    }
+
+    #[test]
+    fn a_wrong_velocity_never_locks_the_object_out() {
+        let image = image_with_squares(&[(200, 100)], 2);
+        let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+        let fix = perception.step(&input(&image, 0.0));
+        assert!(fix.visible);
+        // A velocity the object does not have: one second later its prediction is 2 m away.
+        perception.estimate.velocity = Vector3::new(2.0, 0.0, 0.0);
+        let again = perception.step(&input(&image, 1.0));
+        assert!(again.visible, "{again:?}");
+        assert!((again.position - fix.position).norm() < 1e-9);
     }
 }
