@@ -12,7 +12,9 @@
 //!    Horizontally the goal keeps moving with the object's velocity latched at the end of
 //!    closure: once the object is in the hand its estimate moves with the tool, and feeding that
 //!    back would keep whatever velocity the tool happens to have.
-//! 4. [`Done`](FinalPhaseStage::Done): at the lift height; the lift goal is still tracked (it
+//!    It ends at the lift height, or after `lifting_timeout` if the arm cannot get there (the
+//!    base driving away from the grasp point stretches it).
+//! 4. [`Done`](FinalPhaseStage::Done): at the lift height (or timed out); the lift goal is still tracked (it
 //!    keeps moving with the latched velocity) until the sequencer hands the arm on.
 //!
 //! Grasp success is decided by the world (the simulator's grasp model), never here.
@@ -144,7 +146,8 @@ impl GraspController {
             && let Some(origin) = self.lift_from
         {
             let lifted = origin.point.z + self.config.lift_height - self.config.lift_tolerance;
-            if tool.z >= lifted {
+            let timed_out = self.clock.elapsed(input.t) >= self.config.lifting_timeout;
+            if tool.z >= lifted || timed_out {
                 self.enter(FinalPhaseStage::Done, input.t);
             }
         }
@@ -410,6 +413,22 @@ mod tests {
         assert_eq!(out.stage, FinalPhaseStage::Lifting);
         assert!(out.twist[2] > 0.0, "lifting moves up: {}", out.twist);
         assert_eq!(out.gripper, GripperCommand::Close);
+    }
+
+    #[test]
+    fn a_lift_the_arm_cannot_finish_ends_after_its_timeout() {
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let tool = Isometry3::new(CUBE, Vector3::x() * PI);
+        let mut input = KinematicWorld::new(tool, 0.3, TargetPath::Static(CUBE), DT).input();
+        input.gripper_opening = config.grasp.closed_opening; // closed on the cube
+        controller.step(&input);
+        assert_eq!(controller.stage(), FinalPhaseStage::Lifting);
+        // The tool stays where it closed (the arm is stretched by the base driving away).
+        input.t += config.grasp.lifting_timeout * 0.9;
+        assert_eq!(controller.step(&input).stage, FinalPhaseStage::Lifting);
+        input.t += config.grasp.lifting_timeout * 0.2;
+        assert_eq!(controller.step(&input).stage, FinalPhaseStage::Done);
     }
 
     #[test]

@@ -460,6 +460,12 @@ pub struct GraspConfig {
     pub lift_height: f64,
     /// Done when the tool is within this of the lift height, m (0.01).
     pub lift_tolerance: f64,
+    /// Done anyway after lifting this long, s (1.5; a 0.1 m lift at the servo's speed limit
+    /// takes about 0.7 s). With the base driving away from the grasp point (a turn toward the
+    /// next target right after the grasp) the arm is stretched and the tool cannot rise the
+    /// whole lift height there; the next phase's reach carries the object on from wherever it
+    /// is, instead of the phase never ending.
+    pub lifting_timeout: f64,
 }
 
 impl Default for GraspConfig {
@@ -474,6 +480,7 @@ impl Default for GraspConfig {
             closing_timeout: 1.0,
             lift_height: 0.1,
             lift_tolerance: 0.01,
+            lifting_timeout: 1.5,
         }
     }
 }
@@ -490,6 +497,7 @@ impl GraspConfig {
                 ("grasp.closing_timeout", self.closing_timeout),
                 ("grasp.lift_height", self.lift_height),
                 ("grasp.lift_tolerance", self.lift_tolerance),
+                ("grasp.lifting_timeout", self.lifting_timeout),
             ],
         )?;
         require_non_negative(file, "grasp.descent_slope", self.descent_slope)?;
