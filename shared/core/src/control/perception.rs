@@ -580,9 +580,11 @@ mod tests {
             let v = perception.estimate().velocity;
             assert!(v.norm() < 0.25, "fix {k}: {v:?}");
         }
-        let mut plain = PerceptionConfig::default();
-        plain.velocity_significance = 0.0;
-        plain.max_object_speed = f64::INFINITY;
+        let plain = PerceptionConfig {
+            velocity_significance: 0.0,
+            max_object_speed: f64::INFINITY,
+            ..PerceptionConfig::default()
+        };
         let mut unshrunk = Perception::new(plain, calibration());
         for (k, dx) in scatter.iter().take(3).enumerate() {
             unshrunk.record_fix(k as f64 * 0.05, Vector3::new(6.5 + dx, 1.0, 0.45));
