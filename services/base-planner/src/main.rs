@@ -8,7 +8,10 @@ use motm_wire::{NoFlags, Service};
 
 fn main() -> ExitCode {
     Service::new(&motm_graph::BASE_PLANNER, "Base planner service").run(
-        |setup, _: NoFlags| Ok(BasePlannerTask::new(&setup.control())),
+        |setup, _: NoFlags| {
+            let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
+            Ok(BasePlannerTask::new(&setup.control(), &tasks.unwrap_or_default()))
+        },
         |task| format!("{} refused cycles", task.refused()),
     )
 }

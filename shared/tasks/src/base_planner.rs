@@ -2,6 +2,7 @@
 //! measured odometry; publishes the base velocity target and the plan (t_R, range-entry pose,
 //! closest approach).
 
+use motm_core::mission::MissionTask;
 use motm_core::stack::base_planner::{BasePlannerCycle, BasePlannerInput};
 use motm_graph::{Task, ports};
 use motm_msgs::{self as msgs, topics};
@@ -39,11 +40,13 @@ pub struct BasePlannerTask {
 }
 
 impl BasePlannerTask {
-    /// The planner of `setup` (its `forward_speed` is the scenario's base speed).
-    pub fn new(setup: &ControlSetup) -> Self {
+    /// The planner of `setup` (its `forward_speed` is the scenario's base speed) for a mission
+    /// over `tasks`, whose known positions its routes keep clear of (none known: no layout).
+    pub fn new(setup: &ControlSetup, tasks: &[MissionTask]) -> Self {
+        let layout: Vec<_> = tasks.iter().map(|t| t.position).collect();
         Self {
             view: ControlView::new(setup.config.mission.run_out_distance),
-            planner: BasePlannerCycle::new(&setup.robot, setup.config.base.clone()),
+            planner: BasePlannerCycle::new(&setup.robot, setup.config.base.clone(), &layout),
             dt: setup.dt(),
         }
     }

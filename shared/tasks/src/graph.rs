@@ -30,7 +30,7 @@ pub fn add_control_tasks(
 ) {
     let rate = |spec: &graph::TaskSpec| spec.rate.hz(setup.rate_hz);
     scheduler.add(
-        BasePlannerTask::new(setup),
+        BasePlannerTask::new(setup, &tasks),
         &graph::BASE_PLANNER,
         rate(&graph::BASE_PLANNER),
     );

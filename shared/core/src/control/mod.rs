@@ -17,5 +17,6 @@ pub mod qp_scenario;
 pub mod quintic;
 pub mod reacher;
 pub mod resolver;
+pub mod route;
 pub mod servo;
 pub mod stack;

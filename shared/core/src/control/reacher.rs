@@ -84,6 +84,11 @@ pub struct ReacherConfig {
     /// known, the gripper yaw is the object's yaw plus the multiple of this closest to the
     /// gripper's current yaw.
     pub yaw_symmetry: f64,
+    /// Yaw the mission's objects stand at about world z, rad: 0, square to the world frame, as
+    /// the cubes are set down. Perception measures no yaw, so a pick's gripper yaw is this plus
+    /// the multiple of `yaw_symmetry` closest to the gripper's current yaw, whatever the base's
+    /// heading as it passes the object.
+    pub object_yaw: f64,
 }
 
 impl Default for ReacherConfig {
@@ -97,6 +102,7 @@ impl Default for ReacherConfig {
             hold_max_speed: 0.25,
             side_change_margin: 0.2,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
+            object_yaw: 0.0,
         }
     }
 }
@@ -116,6 +122,7 @@ impl ReacherConfig {
             ("hold_max_speed", self.hold_max_speed > 0.0),
             ("side_change_margin", self.side_change_margin >= 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
+            ("object_yaw", self.object_yaw.is_finite()),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -124,7 +131,7 @@ impl ReacherConfig {
                     format!("reacher.{key}"),
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
                      min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
-                     side_change_margin ≥ 0, yaw_symmetry > 0)",
+                     side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite)",
                 ));
             }
         }

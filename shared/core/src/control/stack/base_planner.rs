@@ -3,6 +3,8 @@
 use crate::base_controller::{
     BaseController, BaseControllerConfig, BaseControllerInput, BaseControllerOutput, BaseModel,
 };
+use nalgebra::Vector3;
+
 use crate::kinematics::BasePose;
 use crate::robot::Robot;
 use crate::types::TargetEstimate;
@@ -39,10 +41,12 @@ pub struct BasePlannerCycle {
 }
 
 impl BasePlannerCycle {
-    /// A planner for `robot` with `config` (its `forward_speed` is the scenario's base speed).
-    pub fn new(robot: &Robot, config: BaseControllerConfig) -> Self {
+    /// A planner for `robot` with `config` (its `forward_speed` is the scenario's base speed),
+    /// routing clear of `layout`, the known positions of the mission's targets.
+    pub fn new(robot: &Robot, config: BaseControllerConfig, layout: &[Vector3<f64>]) -> Self {
         Self {
-            controller: BaseController::new(config, BaseModel::from_robot(robot)),
+            controller: BaseController::new(config, BaseModel::from_robot(robot))
+                .with_layout(layout),
             refused: 0,
         }
     }

@@ -7,7 +7,7 @@
 use nalgebra::Vector6;
 
 use crate::kinematics::BasePose;
-use crate::mission::Phase;
+use crate::mission::{Phase, TaskKind};
 use crate::on_the_move::OnTheMoveConfig;
 use crate::reacher::{Reacher, ReacherInput, ReacherOutput, ToolState};
 use crate::robot::Robot;
@@ -123,7 +123,8 @@ impl ReacherCycle {
                     acceleration: self.last_acceleration,
                 },
                 target: aim,
-                target_yaw: None,
+                target_yaw: (mission.kind == TaskKind::Pick)
+                    .then_some(self.config.reacher.object_yaw),
                 time_to_range: plan.time_to_range,
                 range_entry_pose: plan.range_entry_pose,
                 dt: self.dt,

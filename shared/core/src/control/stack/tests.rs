@@ -155,7 +155,7 @@ fn place_aim_is_raised_to_the_release_point_and_the_gripper_rests_by_task() {
 #[test]
 fn base_planner_drives_for_the_last_task_after_completion_and_refuses_nan() {
     let robot = frankie();
-    let mut planner = BasePlannerCycle::new(&robot, Default::default());
+    let mut planner = BasePlannerCycle::new(&robot, Default::default(), &[]);
     let mission = view(0, TaskKind::Pick, Phase::Reach);
     let input = BasePlannerInput {
         mission,
