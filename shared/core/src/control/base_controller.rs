@@ -97,6 +97,9 @@ pub struct BaseControllerConfig {
     pub look_ahead: f64,
     /// Headings of ξ_C tried evenly round the circle (besides the straight approach), per side.
     pub heading_candidates: usize,
+    /// Weight of a route's turning in its cost, m per rad: of two routes of about the same
+    /// length, the straighter one (the arm reaches more easily from a base that goes straight).
+    pub turn_cost: f64,
     /// A new pass plan replaces the current one only when its route is shorter by this, m.
     pub replan_margin: f64,
     /// The route is planned again when the base is this far off it, or the target this far
@@ -119,6 +122,10 @@ pub struct BaseControllerConfig {
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
     /// commanded ω may change by per second. 1.0: the base's full capability.
     pub yaw_acceleration_fraction: f64,
+    /// Fraction of v_F the base drives at once it is past a target's run-out while the task is
+    /// still not done (a lift, a drop or a press that takes longer than the run-out), so that
+    /// the arm finishes near the target instead of being carried away from it.
+    pub linger_speed_fraction: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -131,6 +138,7 @@ impl Default for BaseControllerConfig {
             run_out: 0.4,
             look_ahead: 0.4,
             heading_candidates: 16,
+            turn_cost: 0.5,
             replan_margin: 0.3,
             replan_deviation: 0.3,
             replan_period: 1.0,
@@ -139,6 +147,7 @@ impl Default for BaseControllerConfig {
             run_in_tolerance: 0.3,
             pass_margin: 0.3,
             yaw_acceleration_fraction: 1.0,
+            linger_speed_fraction: 0.5,
         }
     }
 }
@@ -162,6 +171,7 @@ impl BaseControllerConfig {
                 "heading_candidates",
                 (1..=360).contains(&self.heading_candidates),
             ),
+            ("turn_cost", non_negative(self.turn_cost)),
             ("replan_margin", non_negative(self.replan_margin)),
             ("replan_deviation", positive(self.replan_deviation)),
             ("replan_period", positive(self.replan_period)),
@@ -173,6 +183,10 @@ impl BaseControllerConfig {
                 "yaw_acceleration_fraction",
                 positive(self.yaw_acceleration_fraction),
             ),
+            (
+                "linger_speed_fraction",
+                self.linger_speed_fraction > 0.0 && self.linger_speed_fraction <= 1.0,
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -182,7 +196,7 @@ impl BaseControllerConfig {
                     "out of range (need forward_speed, closest_approach_radius, min_turn_radius, \
                      look_ahead, replan_deviation, replan_period, run_in_tolerance, \
                      yaw_acceleration_fraction > 0; run_in, run_out, \
-                     replan_margin, commit_distance, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360)",
+                     turn_cost, replan_margin, commit_distance, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
         }
@@ -487,8 +501,23 @@ impl BaseController {
         let mut obstacles = self.layout.clone();
         obstacles.extend([target, next]);
 
-        let speed = self.speed();
-        let route = if self.passed {
+        // Once passed, the base goes straight on to the end of the run-out (the lift, the drop
+        // or the press happen there), and beyond it, while the task is still not done, it slows
+        // to give the arm the time it needs.
+        let current_pass = self.current.plan.map(|plan| plan.pose(target, r_c));
+        let on_run_out = self.passed
+            && current_pass.is_some_and(|pass| {
+                let (u, e) = line_offset(b, &pass);
+                u < self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
+            });
+        let speed = if self.passed && !on_run_out {
+            self.speed() * self.config.linger_speed_fraction
+        } else {
+            self.speed()
+        };
+        let route = if let (true, Some(pass)) = (on_run_out, current_pass) {
+            Route::Line(pass)
+        } else if self.passed {
             let mut approach = self.next;
             let route = self.approach(&mut approach, b, next, None, &obstacles, self.clock);
             self.next = approach;
@@ -615,8 +644,14 @@ impl BaseController {
             }
             if valid {
                 let pass = plan.pose(target, r_c);
+                let rest = DubinsPath::shortest(
+                    &route.path.sample(route.progress),
+                    &route.path.sample(route.path.length()),
+                    radius,
+                );
                 kept_cost = Some(
                     route.path.length() - route.progress
+                        + config.turn_cost * rest.turning()
                         + config.run_in
                         + config.run_out
                         + self.next_leg(&along(&pass, config.run_out), next, obstacles, radius),
@@ -642,6 +677,10 @@ impl BaseController {
             {
                 best = Some((*plan, cost));
             }
+        }
+        if std::env::var_os("MOTM_DEBUG_ROUTE").is_some() {
+            eprintln!("ROUTE t={clock:.2} base=({:.2},{:.2},{:.2}) target=({:.2},{:.2}) next={next:?} kept={kept_cost:?} best={best:?} current={:?}", base.x, base.y, base.yaw, target.x, target.y, approach.plan);
+            for plan in &candidates { eprintln!("   {:?} {:.2} -> {:?}", plan.side, plan.heading, self.score(base, target, next, plan, obstacles, radius)); }
         }
         let keep = matches!((best, kept_cost), (Some((_, b)), Some(k)) if k <= b + config.replan_margin)
             || (best.is_none() && kept_cost.is_some());
@@ -725,7 +764,7 @@ impl BaseController {
             {
                 return None;
             }
-            path.length() + straight
+            path.length() + config.turn_cost * path.turning() + straight
         };
         cost += self.next_leg(&along(&pass, config.run_out), next, obstacles, radius);
         Some(cost)
@@ -760,7 +799,7 @@ impl BaseController {
                 } else {
                     BLOCKED_NEXT_LEG
                 };
-                path.length() + blocked
+                path.length() + self.config.turn_cost * path.turning() + blocked
             })
             .min_by(f64::total_cmp)
             .unwrap_or(0.0)

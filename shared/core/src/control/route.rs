@@ -130,6 +130,15 @@ impl DubinsPath {
         self.segments.iter().map(|s| s.1).sum()
     }
 
+    /// Total turning along the path, rad (the arcs' lengths over the radius).
+    pub fn turning(&self) -> f64 {
+        self.segments
+            .iter()
+            .filter(|(kind, _)| *kind != Segment::Straight)
+            .map(|(_, length)| length / self.radius)
+            .sum()
+    }
+
     /// The pose `distance` metres along the path (clamped to the path; beyond its end, straight
     /// on along the final heading).
     pub fn sample(&self, distance: f64) -> BasePose {
