@@ -16,7 +16,7 @@ use crate::{plots, report, trial};
 /// Arguments of `motm experiment`.
 #[derive(Args, Debug)]
 pub struct ExperimentArgs {
-    /// Which experiment: exp1, exp2, platforms or all.
+    /// Which experiment: exp1, exp2, platforms, missions or all.
     pub which: String,
     /// Trials per table row.
     #[arg(long, default_value_t = 20)]

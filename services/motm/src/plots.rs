@@ -249,6 +249,7 @@ mod tests {
         .into_iter()
         .map(|(robot, v, t)| TableRow {
             experiment: "platforms",
+            scenario: format!("platforms-{robot}"),
             robot: robot.into(),
             method: Method::Motm,
             base_speed: v,

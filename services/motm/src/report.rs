@@ -13,7 +13,7 @@ pub fn markdown(rows: &[TableRow], filter_description: &str) -> String {
         out,
         "Simulated trials with the default (realistic) noise. EE acceleration: {filter_description}.\n"
     );
-    for experiment in ["exp1", "exp2", "platforms"] {
+    for experiment in ["exp1", "exp2", "platforms", "missions"] {
         let selected: Vec<&TableRow> = rows.iter().filter(|r| r.experiment == experiment).collect();
         if selected.is_empty() {
             continue;
@@ -34,7 +34,11 @@ pub fn markdown(rows: &[TableRow], filter_description: &str) -> String {
             let _ = writeln!(
                 out,
                 "| {} | {} | {:.1} | {} | {}/{} | {:.2} | {:.1} | {:.2} | {:.2} | {} | {} | {} |",
-                row.robot,
+                if row.experiment == "missions" {
+                    format!("{} ({})", row.robot, row.scenario)
+                } else {
+                    row.robot.clone()
+                },
                 row.method,
                 row.base_speed,
                 row.object.name(),
@@ -44,7 +48,7 @@ pub fn markdown(rows: &[TableRow], filter_description: &str) -> String {
                 row.mtph,
                 row.ee_acc_mean,
                 row.ee_acc_max,
-                if row.experiment == "exp2" {
+                if matches!(row.experiment, "exp2" | "missions") {
                     format!("{:.1}", row.round_trip_s)
                 } else {
                     "–".into()
@@ -67,6 +71,7 @@ fn title(experiment: &str) -> &'static str {
     match experiment {
         "exp1" => "Exp 1: pick and place over about 4 m (paper Table I)",
         "exp2" => "Exp 2: ten objects in a row, each placed 3 m away",
+        "missions" => "Mission library: multi-task layouts (round trip: mean time per pick and place)",
         _ => "Platforms: task time and acceleration against base speed",
     }
 }
@@ -100,7 +105,7 @@ fn paper_columns(row: &TableRow) -> String {
 /// The rows as CSV, one line per row.
 pub fn csv(rows: &[TableRow]) -> String {
     let mut out = String::from(
-        "experiment,robot,method,base_speed,object,trials,successes,task_time_s,mtph,ee_acc_mean,ee_acc_max,round_trip_s,failures\n",
+        "experiment,scenario,robot,method,base_speed,object,trials,successes,task_time_s,mtph,ee_acc_mean,ee_acc_max,round_trip_s,failures\n",
     );
     for row in rows {
         let failures = row
@@ -111,8 +116,9 @@ pub fn csv(rows: &[TableRow]) -> String {
             .join(";");
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{},{:.4},{:.2},{:.4},{:.4},{:.4},{}",
+            "{},{},{},{},{},{},{},{},{:.4},{:.2},{:.4},{:.4},{:.4},{}",
             row.experiment,
+            row.scenario,
             row.robot,
             row.method,
             row.base_speed,
@@ -157,6 +163,7 @@ mod tests {
     fn row(experiment: &'static str, method: Method, speed: f64) -> TableRow {
         TableRow {
             experiment,
+            scenario: "exp1-static".into(),
             robot: "frankie".into(),
             method,
             base_speed: speed,

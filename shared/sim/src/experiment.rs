@@ -192,8 +192,10 @@ pub const CYCLE_COLUMNS: [&str; 30] = [
 /// One row of a results table: the trials of one method, speed, robot and object motion.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TableRow {
-    /// Experiment ("exp1", "exp2" or "platforms").
+    /// Experiment ("exp1", "exp2", "platforms" or "missions").
     pub experiment: &'static str,
+    /// Scenario name.
+    pub scenario: String,
     /// Robot name.
     pub robot: String,
     /// Control method.
@@ -322,7 +324,21 @@ pub const PLATFORM_SPEEDS: [f64; 4] = [0.1, 0.2, 0.3, 0.4];
 /// Robots of the platforms sweep.
 pub const PLATFORM_ROBOTS: [&str; 3] = ["frankie", "fetch", "husky_ur5"];
 
-/// The trials of an experiment: "exp1", "exp2", "platforms" or "all".
+/// The mission library (`config/scenarios/mission-*.toml`) and the robot each names: multi-task
+/// layouts (U-turns, places behind, zigzags, alternating sides, mixed static and moving objects,
+/// a press between picks) run by `motm experiment missions`.
+pub const MISSION_LIBRARY: [(&str, &str); 8] = [
+    ("mission-u-turn-place", "frankie"),
+    ("mission-place-behind", "frankie"),
+    ("mission-zigzag", "frankie"),
+    ("mission-alternating-sides", "frankie"),
+    ("mission-three-mixed", "frankie"),
+    ("mission-press-between", "frankie"),
+    ("mission-husky-zigzag", "husky_ur5"),
+    ("mission-fetch-u-turn", "fetch"),
+];
+
+/// The trials of an experiment: "exp1", "exp2", "platforms", "missions" or "all".
 ///
 /// Seeds are `seed + k` for the k-th trial of a row, so every row sees the same object paths.
 pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>, String> {
@@ -346,9 +362,9 @@ pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>
         }
     };
     let wanted = |name: &str| experiment == name || experiment == "all";
-    if !matches!(experiment, "exp1" | "exp2" | "platforms" | "all") {
+    if !matches!(experiment, "exp1" | "exp2" | "platforms" | "missions" | "all") {
         return Err(format!(
-            "unknown experiment {experiment:?}: expected exp1, exp2, platforms or all"
+            "unknown experiment {experiment:?}: expected exp1, exp2, platforms, missions or all"
         ));
     }
     if wanted("exp1") {
@@ -396,16 +412,29 @@ pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>
             }
         }
     }
+    if wanted("missions") {
+        for (scenario, robot) in MISSION_LIBRARY {
+            add(
+                "missions",
+                scenario,
+                robot,
+                Method::Motm,
+                0.3,
+                ObjectMotion::Static,
+            );
+        }
+    }
     Ok(specs)
 }
 
-/// Groups trial results into table rows, one per (experiment, robot, method, speed, object), in
-/// the order the rows first appear in `trials`.
+/// Groups trial results into table rows, one per (experiment, scenario, robot, method, speed,
+/// object), in the order the rows first appear in `trials`.
 pub fn aggregate(trials: &[(TrialSpec, TrialResult)]) -> Vec<TableRow> {
     let mut rows: Vec<(TableRow, Vec<f64>, Vec<f64>)> = Vec::new();
     for (spec, result) in trials {
         let key_matches = |row: &TableRow| {
             row.experiment == spec.experiment
+                && row.scenario == spec.scenario
                 && row.robot == spec.robot
                 && row.method == spec.method
                 && row.base_speed == spec.base_speed
@@ -417,6 +446,7 @@ pub fn aggregate(trials: &[(TrialSpec, TrialResult)]) -> Vec<TableRow> {
                 rows.push((
                     TableRow {
                         experiment: spec.experiment,
+                        scenario: spec.scenario.clone(),
                         robot: spec.robot.clone(),
                         method: spec.method,
                         base_speed: spec.base_speed,

@@ -17,6 +17,7 @@
 //! [[buttons]]                       # optional: pressed in order after every object is placed
 //! position = [6.0, 0.5, 0.5]        # centre of the button's top face, m
 //! depth = 0.01                      # m the button must be pushed (optional)
+//! after_object = 0                  # optional: pressed right after object 0 is placed
 //!
 //! [noise]                           # every key optional; defaults are the realistic ones
 //! camera_pixel_std = 1.0
@@ -78,6 +79,10 @@ pub struct ScenarioButton {
     /// How far the button must be pushed down to count as pressed, m.
     #[serde(default = "default_button_depth")]
     pub depth: f64,
+    /// Index of the object after whose place the button is pressed; without it the button is
+    /// pressed after every object is placed (buttons in their order either way).
+    #[serde(default)]
+    pub after_object: Option<usize>,
 }
 
 /// The default button travel that counts as a press, m.
@@ -215,9 +220,15 @@ impl Scenario {
         BasePose::new(self.start_pose[0], self.start_pose[1], self.start_pose[2])
     }
 
-    /// The mission: pick and place each cube in order, then press each button in order.
+    /// The mission: pick and place each cube in order, each button pressed right after the
+    /// object its `after_object` names is placed, or after every object without it.
     pub fn mission_tasks(&self) -> Vec<MissionTask> {
         let mut tasks = Vec::with_capacity(2 * self.objects.len() + self.buttons.len());
+        let press = |item: usize, button: &ScenarioButton| MissionTask {
+            kind: TaskKind::PressButton,
+            item,
+            position: Vector3::from(button.position),
+        };
         for (item, object) in self.objects.iter().enumerate() {
             tasks.push(MissionTask {
                 kind: TaskKind::Pick,
@@ -229,13 +240,16 @@ impl Scenario {
                 item,
                 position: Vector3::from(object.place),
             });
+            for (b, button) in self.buttons.iter().enumerate() {
+                if button.after_object == Some(item) {
+                    tasks.push(press(b, button));
+                }
+            }
         }
-        for (item, button) in self.buttons.iter().enumerate() {
-            tasks.push(MissionTask {
-                kind: TaskKind::PressButton,
-                item,
-                position: Vector3::from(button.position),
-            });
+        for (b, button) in self.buttons.iter().enumerate() {
+            if button.after_object.is_none_or(|k| k >= self.objects.len()) {
+                tasks.push(press(b, button));
+            }
         }
         tasks
     }
@@ -270,6 +284,14 @@ impl Scenario {
             check_above_floor(file, &format!("{key}.position"), &button.position)?;
             if !(button.depth.is_finite() && button.depth > 0.0 && button.depth <= 0.05) {
                 return bad(&format!("{key}.depth"), "must be in (0, 0.05] m");
+            }
+            if let Some(k) = button.after_object
+                && k >= self.objects.len()
+            {
+                return bad(
+                    &format!("{key}.after_object"),
+                    &format!("no object {k}: the scenario has {}", self.objects.len()),
+                );
             }
         }
         self.noise.validate(file)

@@ -122,9 +122,9 @@ pub struct BaseControllerConfig {
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
     /// commanded ω may change by per second. 1.0: the base's full capability.
     pub yaw_acceleration_fraction: f64,
-    /// Fraction of v_F the base drives at once it is past a target's run-out while the task is
-    /// still not done (a lift, a drop or a press that takes longer than the run-out), so that
-    /// the arm finishes near the target instead of being carried away from it.
+    /// Fraction of v_F the base drives at once it is past a target's ξ_C while the task is
+    /// still not done (a late reach, a lift, a drop or a press), so that the arm finishes near
+    /// the target instead of being carried away from it.
     pub linger_speed_fraction: f64,
 }
 
@@ -510,7 +510,9 @@ impl BaseController {
                 let (u, e) = line_offset(b, &pass);
                 u < self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
             });
-        let speed = if self.passed && !on_run_out {
+        let past_pass = self.passed
+            || current_pass.is_some_and(|pass| line_offset(b, &pass).0 > 0.0);
+        let speed = if past_pass {
             self.speed() * self.config.linger_speed_fraction
         } else {
             self.speed()

@@ -94,7 +94,7 @@ pub struct ReacherConfig {
 impl Default for ReacherConfig {
     fn default() -> Self {
         Self {
-            arm_speed_ratio: 0.5,
+            arm_speed_ratio: 0.8,
             pregrasp_height: 0.05,
             min_duration: 0.2,
             min_base_speed: 0.05,
