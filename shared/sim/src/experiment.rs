@@ -529,7 +529,15 @@ mod tests {
         assert_eq!(specs[2].seed, 9);
         assert!(plan("exp9", 1, 0).is_err());
         let all = plan("all", 1, 0).unwrap();
-        assert_eq!(all.len(), 10 + 3 + 12);
+        assert_eq!(all.len(), 10 + 3 + 12 + MISSION_LIBRARY.len());
+        // Every mission of the library is a scenario file naming the robot listed for it.
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/scenarios");
+        for (name, robot) in MISSION_LIBRARY {
+            let scenario = crate::scenario::Scenario::from_file(&dir.join(format!("{name}.toml")))
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(scenario.robot, robot, "{name}");
+            assert!(scenario.mission_tasks().len() >= 3, "{name} is not a mission");
+        }
     }
 
     #[test]

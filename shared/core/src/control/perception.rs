@@ -58,6 +58,16 @@ pub struct PerceptionConfig {
     /// A blob within this distance of the last fix is accepted too, so that a wrong velocity
     /// (whose prediction runs away) can never lock the object out.
     pub max_prior_distance: f64,
+    /// Before the first fix, a blob whose fix is farther than this from the hint (the task's
+    /// known position) is another object, m. 0.6 m: wider than `max_prior_distance`, because
+    /// the hint is a world position while the fixes are in the odometry frame, which drifts by
+    /// about 1 % of the distance driven (tens of centimetres over a long mission).
+    pub max_hint_distance: f64,
+    /// A pixel is blue (a container) when its blue channel is at least this (8-bit). Default 80.
+    pub min_blue: u8,
+    /// ... and its blue channel exceeds both red and green by at least this. Default 50: the
+    /// containers render at about (40, 80, 170), the wood and grey surfaces have margins below 25.
+    pub min_blue_margin: u8,
     /// How many standard errors a fitted velocity must exceed to be believed. The fit's
     /// standard error comes from the residuals of the fixes about the fitted line; the velocity
     /// is shrunk by `1 − (k·se/|v|)²` (to zero below `k·se`). Fixes of a far object at a
@@ -80,6 +90,9 @@ impl Default for PerceptionConfig {
             min_velocity_span: 0.1,
             max_range: 5.0,
             max_prior_distance: 0.3,
+            max_hint_distance: 0.6,
+            min_blue: 80,
+            min_blue_margin: 50,
             velocity_significance: 2.0,
             max_object_speed: 0.5,
         }
@@ -92,6 +105,31 @@ impl PerceptionConfig {
         let margin = self.min_red_margin as i16;
         r >= self.min_red && r as i16 - g as i16 >= margin && r as i16 - b as i16 >= margin
     }
+
+    /// Whether an RGB pixel counts as blue under these thresholds.
+    pub fn is_blue(&self, r: u8, g: u8, b: u8) -> bool {
+        let margin = self.min_blue_margin as i16;
+        b >= self.min_blue && b as i16 - r as i16 >= margin && b as i16 - g as i16 >= margin
+    }
+
+    /// Whether an RGB pixel has `colour` under these thresholds.
+    pub fn has_colour(&self, colour: BlobColour, p: &[u8]) -> bool {
+        match colour {
+            BlobColour::Red => self.is_red(p[0], p[1], p[2]),
+            BlobColour::Blue => self.is_blue(p[0], p[1], p[2]),
+        }
+    }
+}
+
+/// The colour of the target's blob: the scene keeps red for cubes and button caps and blue for
+/// containers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BlobColour {
+    /// A cube or a button cap.
+    #[default]
+    Red,
+    /// A container.
+    Blue,
 }
 
 /// One camera image and what perception needs to interpret it.
@@ -113,6 +151,8 @@ pub struct PerceptionInput<'a> {
     /// several red blobs before the first fix. After a fix, the blob nearest to the prediction
     /// from the last estimate is chosen; with neither, the largest blob.
     pub target_hint: Option<Vector3<f64>>,
+    /// The colour of the target's blob.
+    pub colour: BlobColour,
 }
 
 /// What perception reports after each image.
@@ -225,7 +265,7 @@ impl Perception {
             && input
                 .target_hint
                 .is_none_or(|h| h.iter().all(|v| v.is_finite()));
-        if !usable || self.threshold(input.image) < self.config.min_pixels {
+        if !usable || self.threshold(input.image, input.colour) < self.config.min_pixels {
             return None;
         }
         self.label_blobs(input.width as usize, input.height as usize);
@@ -262,8 +302,13 @@ impl Perception {
             };
             // Nearest to the prior wins (blobs too far from it are other cubes, e.g. ones
             // already in a container); without a prior, the largest blob.
+            let gate = if self.estimate.valid {
+                self.config.max_prior_distance
+            } else {
+                self.config.max_hint_distance
+            };
             let score = match distance(fix) {
-                Some(d) if d > self.config.max_prior_distance => continue,
+                Some(d) if d > gate => continue,
                 Some(d) => d,
                 None => -(blob.pixels as f64),
             };
@@ -274,12 +319,12 @@ impl Perception {
         best.map(|(_, fix)| fix)
     }
 
-    /// Marks red pixels in `labels`; returns how many there are.
-    fn threshold(&mut self, image: &[u8]) -> usize {
+    /// Marks the pixels of `colour` in `labels`; returns how many there are.
+    fn threshold(&mut self, image: &[u8], colour: BlobColour) -> usize {
         self.labels.clear();
         let mut count = 0;
         self.labels.extend(image.chunks_exact(3).map(|p| {
-            if self.config.is_red(p[0], p[1], p[2]) {
+            if self.config.has_colour(colour, p) {
                 count += 1;
                 UNLABELLED
             } else {
@@ -464,6 +509,7 @@ mod tests {
             tool_pose: looking_down(),
             object_height: 0.0,
             target_hint: None,
+            colour: BlobColour::Red,
         }
     }
 

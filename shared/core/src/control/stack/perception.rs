@@ -13,7 +13,9 @@ use nalgebra::Isometry3;
 
 use crate::camera::CameraCalibration;
 use crate::mission::TaskKind;
-use crate::perception::{ObjectEstimate, Perception, PerceptionConfig, PerceptionInput};
+use crate::perception::{
+    BlobColour, ObjectEstimate, Perception, PerceptionConfig, PerceptionInput,
+};
 
 use super::{MissionView, seconds};
 
@@ -118,6 +120,11 @@ impl PerceptionCycle {
             tool_pose,
             object_height: mission.target.z,
             target_hint: Some(mission.target),
+            colour: if mission.kind == TaskKind::Place {
+                BlobColour::Blue
+            } else {
+                BlobColour::Red
+            },
         });
         if estimate.visible {
             self.fix_stamp_ns = frame.stamp_ns;
