@@ -111,8 +111,10 @@ pub struct BaseControllerConfig {
     /// reacher starts the arm's transit about this far out, and a new heading would swing the
     /// arm away from the target it is reaching for.
     pub commit_distance: f64,
-    /// Smallest distance from the base's centre to a known target's centre along a route, away
-    /// from its own pass, m.
+    /// Radius of the circle a known target (a platform, a container, a button) is taken to fill,
+    /// m. 0.22: the half-diagonal of the 0.3 m platforms and containers, plus a centimetre.
+    pub obstacle_radius: f64,
+    /// Smallest gap a route keeps between the base's footprint and a known target's circle, m.
     pub clearance: f64,
     /// Largest distance from the run-in line at which the base counts as on it, m.
     pub run_in_tolerance: f64,
@@ -143,7 +145,8 @@ impl Default for BaseControllerConfig {
             replan_deviation: 0.3,
             replan_period: 1.0,
             commit_distance: 2.5,
-            clearance: 0.5,
+            obstacle_radius: 0.22,
+            clearance: 0.03,
             run_in_tolerance: 0.3,
             pass_margin: 0.3,
             yaw_acceleration_fraction: 1.0,
@@ -176,6 +179,7 @@ impl BaseControllerConfig {
             ("replan_deviation", positive(self.replan_deviation)),
             ("replan_period", positive(self.replan_period)),
             ("commit_distance", non_negative(self.commit_distance)),
+            ("obstacle_radius", non_negative(self.obstacle_radius)),
             ("clearance", non_negative(self.clearance)),
             ("run_in_tolerance", positive(self.run_in_tolerance)),
             ("pass_margin", non_negative(self.pass_margin)),
@@ -196,7 +200,7 @@ impl BaseControllerConfig {
                     "out of range (need forward_speed, closest_approach_radius, min_turn_radius, \
                      look_ahead, replan_deviation, replan_period, run_in_tolerance, \
                      yaw_acceleration_fraction > 0; run_in, run_out, \
-                     turn_cost, replan_margin, commit_distance, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
+                     turn_cost, replan_margin, commit_distance, obstacle_radius, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
         }
@@ -253,6 +257,8 @@ pub struct BaseModel {
     pub max_yaw_rate: f64,
     /// Base yaw acceleration limit, rad/s².
     pub max_yaw_acceleration: f64,
+    /// Half the footprint's length and width (a rectangle about the base frame's origin), m.
+    pub half_extents: Vector2<f64>,
 }
 
 impl BaseModel {
@@ -267,6 +273,10 @@ impl BaseModel {
             max_speed: limits[1].velocity,
             max_yaw_rate: limits[0].velocity,
             max_yaw_acceleration: limits[0].acceleration,
+            half_extents: Vector2::new(
+                0.5 * robot.config.footprint[0],
+                0.5 * robot.config.footprint[1],
+            ),
         }
     }
 }
@@ -347,6 +357,8 @@ struct Approach {
     plan: Option<PassPlan>,
     route: Option<KeptRoute>,
     committed: bool,
+    /// No route to any pass plan keeps clear of the known targets.
+    blocked: bool,
 }
 
 /// A planned route and how far along it the base is.
@@ -435,7 +447,7 @@ impl BaseController {
         }
     }
 
-    /// The same controller, keeping its routes `clearance` away from the known positions of the
+    /// The same controller, keeping its routes' footprint clear of the known positions of the
     /// mission's targets (`layout`: platforms, containers and buttons; only x and y are used).
     pub fn with_layout(mut self, layout: &[nalgebra::Vector3<f64>]) -> Self {
         self.layout = layout.iter().map(xy).collect();
@@ -554,11 +566,24 @@ impl BaseController {
             }
         };
         self.closest_approach = pass;
+        // With every route blocked the base stops and turns on the spot toward the route it
+        // would take, until a clear one opens (a base close in front of a container after a
+        // drop cannot turn away at the minimum radius without touching it).
+        let driving = if self.passed { &self.next } else { &self.current };
+        let blocked = driving.blocked && !matches!(route, Route::Line(_));
+        let (speed, wanted_omega) = if blocked {
+            let offset = point - Vector2::new(b.x, b.y);
+            let bearing = wrap_angle(offset.y.atan2(offset.x) - b.yaw);
+            let limit = 0.5 * self.model.max_yaw_rate;
+            (0.0, (2.0 * bearing).clamp(-limit, limit))
+        } else {
+            (speed, pursue(b, point, speed))
+        };
 
         let max_change = self.model.max_yaw_acceleration
             * self.config.yaw_acceleration_fraction
             * input.dt.max(0.0);
-        let omega = pursue(b, point, speed)
+        let omega = wanted_omega
             .clamp(self.last_omega - max_change, self.last_omega + max_change)
             .clamp(-self.model.max_yaw_rate, self.model.max_yaw_rate);
         self.last_omega = omega;
@@ -635,9 +660,11 @@ impl BaseController {
             if to_pass <= config.commit_distance {
                 // Close in, the arm is already reaching for the target: the plan stays, only
                 // the route to it is planned again.
-                let pass = plan.pose(target, r_c);
+                let start = along(&plan.pose(target, r_c), -config.run_in);
                 approach.route = Some(KeptRoute {
-                    path: DubinsPath::shortest(base, &along(&pass, -config.run_in), radius),
+                    path: self
+                        .clear_route(base, &start, radius, obstacles)
+                        .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius)),
                     progress: 0.0,
                     target,
                     planned_at: clock,
@@ -692,9 +719,11 @@ impl BaseController {
             }
             return self.route_or_line(approach, base, target);
         }
+        approach.blocked = best.is_none();
         let plan = match best {
             Some((plan, _)) => plan,
-            // Every route is blocked: the shortest, blocked or not.
+            // Every route is blocked: the base turns on the spot (see `step`) toward the
+            // shortest, blocked or not, and plans again next step.
             None => candidates
                 .iter()
                 .copied()
@@ -707,10 +736,17 @@ impl BaseController {
                     heading: base.yaw,
                 }),
         };
-        let pass = plan.pose(target, r_c);
+        let start = along(&plan.pose(target, r_c), -config.run_in);
         approach.plan = Some(plan);
+        let path = self
+            .clear_route(base, &start, radius, obstacles)
+            .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius));
+        if approach.blocked {
+            approach.route = None;
+            return Route::Path(path, 0.0);
+        }
         approach.route = Some(KeptRoute {
-            path: DubinsPath::shortest(base, &along(&pass, -config.run_in), radius),
+            path,
             progress: 0.0,
             target,
             planned_at: clock,
@@ -760,10 +796,8 @@ impl BaseController {
             }
             config.run_out - u
         } else {
-            let path = DubinsPath::shortest(base, &along(&pass, -config.run_in), radius);
-            if !self.clear_path(&path, obstacles)
-                || !self.clear_line(&along(&pass, -config.run_in), straight, obstacles)
-            {
+            let path = self.clear_route(base, &along(&pass, -config.run_in), radius, obstacles)?;
+            if !self.clear_line(&along(&pass, -config.run_in), straight, obstacles) {
                 return None;
             }
             path.length() + config.turn_cost * path.turning() + straight
@@ -794,12 +828,10 @@ impl BaseController {
                 )
             })
             .map(|(point, heading)| {
-                let path =
-                    DubinsPath::shortest(out, &BasePose::new(point.x, point.y, heading), radius);
-                let blocked = if self.clear_path(&path, obstacles) {
-                    0.0
-                } else {
-                    BLOCKED_NEXT_LEG
+                let goal = BasePose::new(point.x, point.y, heading);
+                let (path, blocked) = match self.clear_route(out, &goal, radius, obstacles) {
+                    Some(path) => (path, 0.0),
+                    None => (DubinsPath::shortest(out, &goal, radius), BLOCKED_NEXT_LEG),
                 };
                 path.length() + self.config.turn_cost * path.turning() + blocked
             })
@@ -807,46 +839,83 @@ impl BaseController {
             .unwrap_or(0.0)
     }
 
-    /// Whether every point of `path` keeps `clearance` from every obstacle.
+    /// The shortest Dubins path from `from` to `to` whose footprint keeps clear of every
+    /// obstacle (trying every word, shortest first), if any.
+    fn clear_route(
+        &self,
+        from: &BasePose,
+        to: &BasePose,
+        radius: f64,
+        obstacles: &[Vector2<f64>],
+    ) -> Option<DubinsPath> {
+        DubinsPath::words(from, to, radius)
+            .into_iter()
+            .find(|path| self.clear_path(path, obstacles))
+    }
+
+    /// Whether the base's footprint keeps clear of every obstacle all along `path`.
     fn clear_path(&self, path: &DubinsPath, obstacles: &[Vector2<f64>]) -> bool {
         let length = path.length();
         let steps = (length / CLEARANCE_STEP).ceil() as usize;
-        let near = self.near(&path.start, length, obstacles);
-        (0..=steps).all(|k| {
-            let p = path.sample(k as f64 * CLEARANCE_STEP);
-            self.clear_point(Vector2::new(p.x, p.y), &near)
-        })
+        self.clear_poses(
+            &path.start,
+            length,
+            obstacles,
+            (0..=steps).map(|k| path.sample(k as f64 * CLEARANCE_STEP)),
+        )
     }
 
-    /// Whether the straight line `length` long from `start` keeps `clearance` from every
-    /// obstacle.
+    /// Whether the base's footprint keeps clear of every obstacle along the straight line
+    /// `length` long from `start`.
     fn clear_line(&self, start: &BasePose, length: f64, obstacles: &[Vector2<f64>]) -> bool {
-        let near = self.near(start, length, obstacles);
-        let steps = (length.max(0.0) / CLEARANCE_STEP).ceil() as usize;
-        (0..=steps).all(|k| {
-            let p = along(start, (k as f64 * CLEARANCE_STEP).min(length.max(0.0)));
-            self.clear_point(Vector2::new(p.x, p.y), &near)
+        let length = length.max(0.0);
+        let steps = (length / CLEARANCE_STEP).ceil() as usize;
+        self.clear_poses(
+            start,
+            length,
+            obstacles,
+            (0..=steps).map(|k| along(start, (k as f64 * CLEARANCE_STEP).min(length))),
+        )
+    }
+
+    /// Whether, at every one of `poses` (a route `length` long from `start`), the footprint is
+    /// `obstacle_radius + clearance` from every obstacle, or at least no closer than at the
+    /// start (a base that starts too close, e.g. right after a drop, may still drive away).
+    fn clear_poses(
+        &self,
+        start: &BasePose,
+        length: f64,
+        obstacles: &[Vector2<f64>],
+        mut poses: impl Iterator<Item = BasePose>,
+    ) -> bool {
+        let required = self.config.obstacle_radius + self.config.clearance;
+        let reach = length + required + self.model.half_extents.norm();
+        let origin = Vector2::new(start.x, start.y);
+        let near: Vec<(Vector2<f64>, f64)> = obstacles
+            .iter()
+            .filter(|o| (*o - origin).norm() <= reach)
+            .map(|o| (*o, self.footprint_distance(start, o)))
+            .collect();
+        poses.all(|pose| {
+            near.iter().all(|(o, at_start)| {
+                let d = self.footprint_distance(&pose, o);
+                d >= required || d >= at_start - 1e-3
+            })
         })
     }
 
-    /// The obstacles a route `length` long from `start` could come within clearance of.
-    fn near(&self, start: &BasePose, length: f64, obstacles: &[Vector2<f64>]) -> Vec<Vector2<f64>> {
-        let start = Vector2::new(start.x, start.y);
-        let reach = length + self.config.clearance;
-        obstacles
-            .iter()
-            .copied()
-            .filter(|o| (o - start).norm() <= reach)
-            .collect()
-    }
-
-    fn clear_point(&self, point: Vector2<f64>, obstacles: &[Vector2<f64>]) -> bool {
-        // A little under the pass distance, so that the pass itself is clear.
-        let clearance = self
-            .config
-            .clearance
-            .min(self.config.closest_approach_radius - 1e-3);
-        obstacles.iter().all(|o| (o - point).norm() >= clearance)
+    /// Distance from the base's footprint (a rectangle about the base frame's origin) at
+    /// `pose` to the point `o`, m (0 inside).
+    fn footprint_distance(&self, pose: &BasePose, o: &Vector2<f64>) -> f64 {
+        let (sin, cos) = pose.yaw.sin_cos();
+        let d = o - Vector2::new(pose.x, pose.y);
+        let local = Vector2::new(d.x * cos + d.y * sin, -d.x * sin + d.y * cos);
+        let half = self.model.half_extents;
+        Vector2::new(
+            (local.x.abs() - half.x).max(0.0),
+            (local.y.abs() - half.y).max(0.0),
+        )
+        .norm()
     }
 
     /// t_R along `route` at constant `speed`, with the target moving at its estimated velocity.
@@ -916,6 +985,7 @@ mod tests {
             max_speed: 1.2,
             max_yaw_rate: 1.5,
             max_yaw_acceleration: 2.0,
+            half_extents: Vector2::new(0.34, 0.235),
         }
     }
 
@@ -935,8 +1005,8 @@ mod tests {
         target_side: f64,
         /// Side reported by the controller at the closest approach.
         side: PassSide,
-        /// Every commanded forward speed.
-        speeds: Vec<f64>,
+        /// Every commanded forward speed, and whether the target was passed then.
+        speeds: Vec<(f64, bool)>,
         /// Time of the first step reporting "passed", s.
         passed_at: Option<f64>,
         /// Smallest distance from the base to the next target over the run, m.
@@ -988,7 +1058,7 @@ mod tests {
                 pass.passed_at = Some(t);
             }
             assert!(out.command.omega.is_finite() && out.command.omega.abs() <= 1.5);
-            pass.speeds.push(out.command.v);
+            pass.speeds.push((out.command.v, out.passed));
             integrate(&mut base, out.command, DT);
             pass.min_distance_to_next = pass
                 .min_distance_to_next
@@ -1010,7 +1080,11 @@ mod tests {
             PassSide::Right => assert!(pass.target_side > 0.0, "target should be on the left"),
         }
         assert!(pass.passed_at.is_some(), "the passed latch never set");
-        assert!(pass.speeds.iter().all(|v| (v - 0.3).abs() < 1e-12));
+        // v_F until the target is passed; then, the task never being done here, half of it.
+        for &(v, passed) in &pass.speeds {
+            let expected = if passed { 0.15 } else { 0.3 };
+            assert!((v - expected).abs() < 1e-12, "{v} (passed: {passed})");
+        }
     }
 
     /// The default configuration (one element, so the tests can loop over variants).
@@ -1027,7 +1101,7 @@ mod tests {
                 Vector3::new(3.0, 0.0, 0.45),
                 Vector3::zeros(),
                 Vector3::new(5.0, 2.0, 0.35),
-                20.0,
+                40.0,
             );
             assert_passes(&pass, PassSide::Left);
             // After passing, the base heads for the next target's r_C circle: it goes by the
@@ -1049,7 +1123,7 @@ mod tests {
                 Vector3::new(3.0, 0.5, 0.45),
                 Vector3::zeros(),
                 Vector3::new(5.0, -2.0, 0.35),
-                20.0,
+                40.0,
             );
             assert_passes(&pass, PassSide::Right);
             // After passing, the base heads for the next target's r_C circle: it goes by the
@@ -1453,7 +1527,7 @@ mod tests {
             drive_mission(BasePose::new(0.6, 2.0, -FRAC_PI_2), &targets, &layout, 120.0);
         assert!(done, "{closest:?}");
         assert!(closest.iter().all(|d| (d - 0.6).abs() < 0.1), "{closest:?}");
-        assert!(nearest > 0.49, "came within {nearest:.3} m of a platform");
+        assert!(nearest > 0.45, "came within {nearest:.3} m of a platform");
     }
 
     #[test]

@@ -451,6 +451,7 @@ mod tests {
             max_speed: 1.2,
             max_yaw_rate: 1.5,
             max_yaw_acceleration: 2.0,
+            half_extents: Vector2::new(0.34, 0.235),
         }
     }
 

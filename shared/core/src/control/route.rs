@@ -45,6 +45,19 @@ fn mod_tau(angle: f64) -> f64 {
 impl DubinsPath {
     /// The shortest Dubins path from `start` to `goal` with turning radius `radius` (> 0).
     pub fn shortest(start: &BasePose, goal: &BasePose, radius: f64) -> Self {
+        Self::words(start, goal, radius)
+            .into_iter()
+            .next()
+            .unwrap_or_else(|| Self {
+                start: *start,
+                radius,
+                segments: [(Segment::Straight, 0.0); 3],
+            })
+    }
+
+    /// Every Dubins path (one per word that exists) from `start` to `goal`, shortest first: when
+    /// the shortest is blocked, the next may not be.
+    pub fn words(start: &BasePose, goal: &BasePose, radius: f64) -> Vec<Self> {
         use Segment::{Left as L, Right as R, Straight as S};
         let dx = goal.x - start.x;
         let dy = goal.y - start.y;
@@ -110,19 +123,20 @@ impl DubinsPath {
             words.push(([L, R, L], [t, p, mod_tau(beta - alpha - t + p)]));
         }
         // LSL or RSR always exists (one of their p² is ≥ 0), so the list is never empty.
-        let (kinds, lengths) = words
+        let mut paths: Vec<Self> = words
             .into_iter()
-            .min_by(|a, b| a.1.iter().sum::<f64>().total_cmp(&b.1.iter().sum::<f64>()))
-            .unwrap_or(([S, S, S], [d, 0.0, 0.0]));
-        Self {
-            start: *start,
-            radius,
-            segments: [
-                (kinds[0], lengths[0] * radius),
-                (kinds[1], lengths[1] * radius),
-                (kinds[2], lengths[2] * radius),
-            ],
-        }
+            .map(|(kinds, lengths)| Self {
+                start: *start,
+                radius,
+                segments: [
+                    (kinds[0], lengths[0] * radius),
+                    (kinds[1], lengths[1] * radius),
+                    (kinds[2], lengths[2] * radius),
+                ],
+            })
+            .collect();
+        paths.sort_by(|a, b| a.length().total_cmp(&b.length()));
+        paths
     }
 
     /// Total length, m.
@@ -253,9 +267,12 @@ mod tests {
             let start = BasePose::new(8.0 * next() - 4.0, 8.0 * next() - 4.0, TAU * next() - 3.2);
             let goal = BasePose::new(8.0 * next() - 4.0, 8.0 * next() - 4.0, TAU * next() - 3.2);
             let radius = 0.3 + next();
-            let path = DubinsPath::shortest(&start, &goal, radius);
-            let end = path.sample(path.length());
-            assert!(close(&end, &goal), "{start:?} → {goal:?}: {path:?} ends at {end:?}");
+            let paths = DubinsPath::words(&start, &goal, radius);
+            assert!(paths.windows(2).all(|w| w[0].length() <= w[1].length()));
+            for path in paths {
+                let end = path.sample(path.length());
+                assert!(close(&end, &goal), "{start:?} → {goal:?}: {path:?} ends at {end:?}");
+            }
         }
     }
 
