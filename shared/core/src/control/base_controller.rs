@@ -315,6 +315,11 @@ fn line_offset(base: &BasePose, pose: &BasePose) -> (f64, f64) {
     (d.x * cos + d.y * sin, -d.x * sin + d.y * cos)
 }
 
+/// Straight leads tried before a route counts as blocked, in turning radii: none, then driving
+/// on one and two radii before turning (away from a platform just passed, past a container
+/// just dropped into).
+const LEADS: [f64; 3] = [0.0, 1.0, 2.0];
+
 /// Spacing of the points at which a route is checked against the known targets, m.
 const CLEARANCE_STEP: f64 = 0.1;
 
@@ -550,10 +555,14 @@ impl BaseController {
                 // followed w·look_ahead/v behind.
                 let (u, _) = line_offset(b, pass);
                 let point = along(pass, u + self.config.look_ahead);
-                let lead = if self.passed {
+                // Only before ξ_C: once the arm holds the object, its estimate moves with the
+                // gripper, not on its own. At most the run-in tolerance.
+                let lead = if past_pass {
                     Vector2::zeros()
                 } else {
-                    xy(&input.target.velocity) * (self.config.look_ahead / speed.max(1e-3))
+                    let lead = xy(&input.target.velocity)
+                        * (self.config.look_ahead / self.speed().max(1e-3));
+                    lead * (self.config.run_in_tolerance / lead.norm().max(1e-9)).min(1.0)
                 };
                 (*pass, Vector2::new(point.x, point.y) + lead)
             }
@@ -840,7 +849,8 @@ impl BaseController {
     }
 
     /// The shortest Dubins path from `from` to `to` whose footprint keeps clear of every
-    /// obstacle (trying every word, shortest first), if any.
+    /// obstacle (trying every word, shortest first, then the same after driving straight on a
+    /// little: [`LEADS`]), if any.
     fn clear_route(
         &self,
         from: &BasePose,
@@ -848,9 +858,11 @@ impl BaseController {
         radius: f64,
         obstacles: &[Vector2<f64>],
     ) -> Option<DubinsPath> {
-        DubinsPath::words(from, to, radius)
-            .into_iter()
-            .find(|path| self.clear_path(path, obstacles))
+        LEADS.iter().find_map(|&lead| {
+            DubinsPath::words_after(from, lead * radius, to, radius)
+                .into_iter()
+                .find(|path| self.clear_path(path, obstacles))
+        })
     }
 
     /// Whether the base's footprint keeps clear of every obstacle all along `path`.

@@ -52,6 +52,10 @@ pub struct PerceptionConfig {
     /// Fixes farther than this from the camera are discarded (rays grazing the plane), m.
     /// Default 5.
     pub max_range: f64,
+    /// Container fixes farther than this from the camera are discarded, m. Default 1.2: a
+    /// container seen from afar shows mostly its near outer wall, whose centroid put on the rim
+    /// plane lies tens of centimetres short of the centre; close in, the view is from above.
+    pub max_container_range: f64,
     /// A blob whose fix is farther than this from the prior (the last estimate, predicted to
     /// now, or the hint) is another object and is ignored, m. 0.3 m: a cube moving at 3 cm/s
     /// stays well inside it between fixes, while cubes already placed (metres away) are out.
@@ -89,6 +93,7 @@ impl Default for PerceptionConfig {
             velocity_window: 0.5,
             min_velocity_span: 0.1,
             max_range: 5.0,
+            max_container_range: 1.2,
             max_prior_distance: 0.3,
             max_hint_distance: 0.6,
             min_blue: 80,
@@ -296,7 +301,12 @@ impl Perception {
             .iter()
             .filter(|b| b.pixels >= self.config.min_pixels)
         {
-            let Some(fix) = self.intersect(blob.centroid(), &input.tool_pose, input.object_height)
+            let max_range = match input.colour {
+                BlobColour::Red => self.config.max_range,
+                BlobColour::Blue => self.config.max_container_range,
+            };
+            let Some(fix) =
+                self.intersect(blob.centroid(), &input.tool_pose, input.object_height, max_range)
             else {
                 continue;
             };
@@ -376,6 +386,7 @@ impl Perception {
         pixel: Vector2<f64>,
         tool_pose: &Isometry3<f64>,
         height: f64,
+        max_range: f64,
     ) -> Option<Vector3<f64>> {
         let ray = self.calibration.model.unproject(&pixel)?;
         let world_from_camera = tool_pose * self.calibration.tool_from_camera;
@@ -385,7 +396,7 @@ impl Perception {
             return None;
         }
         let distance = (height - origin.z) / direction.z;
-        if !(distance > 0.0 && distance <= self.config.max_range) {
+        if !(distance > 0.0 && distance <= max_range) {
             return None;
         }
         let fix = origin + distance * direction;

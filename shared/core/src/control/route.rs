@@ -27,11 +27,15 @@ pub enum Segment {
     Right,
 }
 
-/// A Dubins path: a start pose, a turning radius and three segments with their lengths in metres.
+/// A Dubins path: a start pose, a turning radius and three segments with their lengths in metres,
+/// optionally after a straight lead (drive on first, then turn: among obstacles the shortest
+/// clear route is often not a Dubins word from the start itself).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DubinsPath {
     /// Where the path starts.
     pub start: BasePose,
+    /// Length of the straight driven from `start` before the three segments, m.
+    pub lead: f64,
     /// Turning radius of the arcs, m.
     pub radius: f64,
     /// The three segments and their lengths, m.
@@ -50,6 +54,7 @@ impl DubinsPath {
             .next()
             .unwrap_or_else(|| Self {
                 start: *start,
+                lead: 0.0,
                 radius,
                 segments: [(Segment::Straight, 0.0); 3],
             })
@@ -127,6 +132,7 @@ impl DubinsPath {
             .into_iter()
             .map(|(kinds, lengths)| Self {
                 start: *start,
+                lead: 0.0,
                 radius,
                 segments: [
                     (kinds[0], lengths[0] * radius),
@@ -139,9 +145,21 @@ impl DubinsPath {
         paths
     }
 
+    /// Every Dubins path from `start` driven `lead` metres straight on to `goal`, shortest
+    /// first (the lead included in each).
+    pub fn words_after(start: &BasePose, lead: f64, goal: &BasePose, radius: f64) -> Vec<Self> {
+        let from = advance(start, Segment::Straight, lead, radius);
+        let mut paths = Self::words(&from, goal, radius);
+        for path in &mut paths {
+            path.start = *start;
+            path.lead = lead;
+        }
+        paths
+    }
+
     /// Total length, m.
     pub fn length(&self) -> f64 {
-        self.segments.iter().map(|s| s.1).sum()
+        self.lead + self.segments.iter().map(|s| s.1).sum::<f64>()
     }
 
     /// Total turning along the path, rad (the arcs' lengths over the radius).
@@ -158,7 +176,7 @@ impl DubinsPath {
     pub fn sample(&self, distance: f64) -> BasePose {
         let mut pose = self.start;
         let mut left = distance.max(0.0);
-        for (kind, length) in self.segments {
+        for (kind, length) in std::iter::once((Segment::Straight, self.lead)).chain(self.segments) {
             let s = left.min(length);
             pose = advance(&pose, kind, s, self.radius);
             left -= s;
@@ -172,7 +190,7 @@ impl DubinsPath {
     /// The signed curvature at `distance` along the path, 1/m (positive turning left).
     pub fn curvature(&self, distance: f64) -> f64 {
         let mut left = distance.max(0.0);
-        for (kind, length) in self.segments {
+        for (kind, length) in std::iter::once((Segment::Straight, self.lead)).chain(self.segments) {
             if left < length {
                 return match kind {
                     Segment::Left => 1.0 / self.radius,
@@ -269,6 +287,9 @@ mod tests {
             let radius = 0.3 + next();
             let paths = DubinsPath::words(&start, &goal, radius);
             assert!(paths.windows(2).all(|w| w[0].length() <= w[1].length()));
+            let led = DubinsPath::words_after(&start, 0.7, &goal, radius);
+            assert!(led.iter().all(|p| p.lead == 0.7 && p.start == start));
+            let paths = paths.into_iter().chain(led);
             for path in paths {
                 let end = path.sample(path.length());
                 assert!(close(&end, &goal), "{start:?} → {goal:?}: {path:?} ends at {end:?}");
