@@ -10,7 +10,10 @@ fn main() -> ExitCode {
     Service::new(&motm_graph::BASE_PLANNER, "Base planner service").run(
         |setup, _: NoFlags| {
             let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
-            Ok(BasePlannerTask::new(&setup.control(), &tasks.unwrap_or_default()))
+            Ok(BasePlannerTask::new(
+                &setup.control(),
+                &tasks.unwrap_or_default(),
+            ))
         },
         |task| format!("{} refused cycles", task.refused()),
     )

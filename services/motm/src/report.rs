@@ -71,7 +71,9 @@ fn title(experiment: &str) -> &'static str {
     match experiment {
         "exp1" => "Exp 1: pick and place over about 4 m (paper Table I)",
         "exp2" => "Exp 2: ten objects in a row, each placed 3 m away",
-        "missions" => "Mission library: multi-task layouts (round trip: mean time per pick and place)",
+        "missions" => {
+            "Mission library: multi-task layouts (round trip: mean time per pick and place)"
+        }
         _ => "Platforms: task time and acceleration against base speed",
     }
 }

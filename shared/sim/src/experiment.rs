@@ -362,7 +362,10 @@ pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>
         }
     };
     let wanted = |name: &str| experiment == name || experiment == "all";
-    if !matches!(experiment, "exp1" | "exp2" | "platforms" | "missions" | "all") {
+    if !matches!(
+        experiment,
+        "exp1" | "exp2" | "platforms" | "missions" | "all"
+    ) {
         return Err(format!(
             "unknown experiment {experiment:?}: expected exp1, exp2, platforms, missions or all"
         ));
@@ -536,7 +539,10 @@ mod tests {
             let scenario = crate::scenario::Scenario::from_file(&dir.join(format!("{name}.toml")))
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(scenario.robot, robot, "{name}");
-            assert!(scenario.mission_tasks().len() >= 3, "{name} is not a mission");
+            assert!(
+                scenario.mission_tasks().len() >= 3,
+                "{name} is not a mission"
+            );
         }
     }
 

@@ -107,6 +107,8 @@ pub struct BaseControllerConfig {
     pub replan_deviation: f64,
     /// Period at which the pass plan is chosen again while the route is followed, s.
     pub replan_period: f64,
+    /// The route (not the plan) is planned again when the target has moved this far since, m.
+    pub route_refresh_distance: f64,
     /// Within this distance along the route from ξ_C the pass plan no longer changes, m: the
     /// reacher starts the arm's transit about this far out, and a new heading would swing the
     /// arm away from the target it is reaching for.
@@ -144,6 +146,7 @@ impl Default for BaseControllerConfig {
             replan_margin: 0.3,
             replan_deviation: 0.3,
             replan_period: 1.0,
+            route_refresh_distance: 0.05,
             commit_distance: 2.5,
             obstacle_radius: 0.22,
             clearance: 0.03,
@@ -178,6 +181,10 @@ impl BaseControllerConfig {
             ("replan_margin", non_negative(self.replan_margin)),
             ("replan_deviation", positive(self.replan_deviation)),
             ("replan_period", positive(self.replan_period)),
+            (
+                "route_refresh_distance",
+                positive(self.route_refresh_distance),
+            ),
             ("commit_distance", non_negative(self.commit_distance)),
             ("obstacle_radius", non_negative(self.obstacle_radius)),
             ("clearance", non_negative(self.clearance)),
@@ -198,7 +205,7 @@ impl BaseControllerConfig {
                     file,
                     format!("base.{key}"),
                     "out of range (need forward_speed, closest_approach_radius, min_turn_radius, \
-                     look_ahead, replan_deviation, replan_period, run_in_tolerance, \
+                     look_ahead, replan_deviation, replan_period, route_refresh_distance, run_in_tolerance, \
                      yaw_acceleration_fraction > 0; run_in, run_out, \
                      turn_cost, replan_margin, commit_distance, obstacle_radius, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
@@ -527,8 +534,8 @@ impl BaseController {
                 let (u, e) = line_offset(b, &pass);
                 u < self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
             });
-        let past_pass = self.passed
-            || current_pass.is_some_and(|pass| line_offset(b, &pass).0 > 0.0);
+        let past_pass =
+            self.passed || current_pass.is_some_and(|pass| line_offset(b, &pass).0 > 0.0);
         let speed = if past_pass {
             self.speed() * self.config.linger_speed_fraction
         } else {
@@ -543,8 +550,7 @@ impl BaseController {
             route
         } else {
             let mut approach = self.current;
-            let route =
-                self.approach(&mut approach, b, target, Some(next), &obstacles, self.clock);
+            let route = self.approach(&mut approach, b, target, Some(next), &obstacles, self.clock);
             self.current = approach;
             route
         };
@@ -578,7 +584,11 @@ impl BaseController {
         // With every route blocked the base stops and turns on the spot toward the route it
         // would take, until a clear one opens (a base close in front of a container after a
         // drop cannot turn away at the minimum radius without touching it).
-        let driving = if self.passed { &self.next } else { &self.current };
+        let driving = if self.passed {
+            &self.next
+        } else {
+            &self.current
+        };
         let blocked = driving.blocked && !matches!(route, Route::Line(_));
         let (speed, wanted_omega) = if blocked {
             let offset = point - Vector2::new(b.x, b.y);
@@ -663,20 +673,29 @@ impl BaseController {
             let moved = (target - route.target).norm();
             let valid = deviation <= config.replan_deviation && moved <= config.replan_deviation;
             let to_pass = route.path.length() - route.progress + config.run_in;
-            if valid && (clock - route.planned_at < config.replan_period || to_pass <= config.commit_distance) {
+            let fresh = moved <= config.route_refresh_distance;
+            if valid
+                && fresh
+                && (clock - route.planned_at < config.replan_period
+                    || to_pass <= config.commit_distance)
+            {
                 return self.route_or_line(approach, base, target);
             }
-            if to_pass <= config.commit_distance {
-                // Close in, the arm is already reaching for the target: the plan stays, only
-                // the route to it is planned again.
+            if to_pass <= config.commit_distance
+                || (valid && clock - route.planned_at < config.replan_period)
+            {
+                // Close in (the arm is already reaching for the target), or the target moved a
+                // little: the plan stays, only the route to it is planned again, so that the
+                // route driven (and t_R along it) is the one to where the target is now.
                 let start = along(&plan.pose(target, r_c), -config.run_in);
+                let planned_at = route.planned_at;
                 approach.route = Some(KeptRoute {
                     path: self
                         .clear_route(base, &start, radius, obstacles)
                         .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius)),
                     progress: 0.0,
                     target,
-                    planned_at: clock,
+                    planned_at,
                 });
                 return self.route_or_line(approach, base, target);
             }
@@ -715,10 +734,6 @@ impl BaseController {
             {
                 best = Some((*plan, cost));
             }
-        }
-        if std::env::var_os("MOTM_DEBUG_ROUTE").is_some() {
-            eprintln!("ROUTE t={clock:.2} base=({:.2},{:.2},{:.2}) target=({:.2},{:.2}) next={next:?} kept={kept_cost:?} best={best:?} current={:?}", base.x, base.y, base.yaw, target.x, target.y, approach.plan);
-            for plan in &candidates { eprintln!("   {:?} {:.2} -> {:?}", plan.side, plan.heading, self.score(base, target, next, plan, obstacles, radius)); }
         }
         let keep = matches!((best, kept_cost), (Some((_, b)), Some(k)) if k <= b + config.replan_margin)
             || (best.is_none() && kept_cost.is_some());
@@ -764,7 +779,12 @@ impl BaseController {
     }
 
     /// The run-in line once the base is on it (committing to the plan), else the kept route.
-    fn route_or_line(&self, approach: &mut Approach, base: &BasePose, target: Vector2<f64>) -> Route {
+    fn route_or_line(
+        &self,
+        approach: &mut Approach,
+        base: &BasePose,
+        target: Vector2<f64>,
+    ) -> Route {
         let plan = approach.plan.unwrap_or_default();
         let pass = plan.pose(target, self.config.closest_approach_radius);
         match &approach.route {
@@ -947,9 +967,21 @@ impl BaseController {
         let arm_base_at = |pose: &BasePose| {
             Vector2::new(pose.x, pose.y) + Rotation2::new(pose.yaw) * self.model.arm_base
         };
+        // On the run-in the base follows the line through ξ_C, which moves with the target: it
+        // drives along the line and moves with the target's motion across it.
+        let across = |pass: &BasePose| {
+            let normal = Vector2::new(-pass.yaw.sin(), pass.yaw.cos());
+            normal * normal.dot(&target_velocity)
+        };
         let pose_at = |s: f64| match route {
             Route::Path(path, progress) => path.sample(progress + s),
-            Route::Line(pass) => along(&BasePose::new(base.x, base.y, pass.yaw), s),
+            Route::Line(pass) => {
+                let drift = across(pass) * (s / speed);
+                along(
+                    &BasePose::new(base.x + drift.x, base.y + drift.y, pass.yaw),
+                    s,
+                )
+            }
         };
         let route_length = match route {
             Route::Path(path, progress) => path.length() - progress,
@@ -1310,7 +1342,11 @@ mod tests {
             .unwrap();
         assert_eq!(out.command.v, 0.25);
         // The turn is as tight as the yaw-rate limit allows at this speed, never tighter.
-        assert!((out.command.omega.abs() - 0.4).abs() < 1e-9, "{}", out.command.omega);
+        assert!(
+            (out.command.omega.abs() - 0.4).abs() < 1e-9,
+            "{}",
+            out.command.omega
+        );
     }
 
     #[test]
@@ -1422,7 +1458,19 @@ mod tests {
             if !out.passed {
                 sides.push(out.side);
             }
-            eprintln!("U {:.2} {:.2} {:.2} {:?} {:.2} {:.2} {:.2} w={:.2} p={} c={}", base.x, base.y, base.yaw, out.side, out.closest_approach.x, out.closest_approach.y, out.closest_approach.yaw, out.command.omega, out.passed, controller.current.committed);
+            eprintln!(
+                "U {:.2} {:.2} {:.2} {:?} {:.2} {:.2} {:.2} w={:.2} p={} c={}",
+                base.x,
+                base.y,
+                base.yaw,
+                out.side,
+                out.closest_approach.x,
+                out.closest_approach.y,
+                out.closest_approach.yaw,
+                out.command.omega,
+                out.passed,
+                controller.current.committed
+            );
             min_distance =
                 min_distance.min((Vector2::new(3.0, 0.0) - Vector2::new(base.x, base.y)).norm());
             turned_back |= base.yaw.cos() < -0.9;
@@ -1467,8 +1515,8 @@ mod tests {
         layout: &[Vector3<f64>],
         duration: f64,
     ) -> (Vec<f64>, f64, bool) {
-        let mut controller =
-            BaseController::new(BaseControllerConfig::default(), frankie_like()).with_layout(layout);
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like())
+            .with_layout(layout);
         let mut base = start;
         let mut task = 0;
         let mut closest = vec![f64::INFINITY; targets.len()];
@@ -1535,8 +1583,12 @@ mod tests {
         let mut layout = row.clone();
         layout.push(container);
         let targets = [row[0], container, row[1], container, row[2]];
-        let (closest, nearest, done) =
-            drive_mission(BasePose::new(0.6, 2.0, -FRAC_PI_2), &targets, &layout, 120.0);
+        let (closest, nearest, done) = drive_mission(
+            BasePose::new(0.6, 2.0, -FRAC_PI_2),
+            &targets,
+            &layout,
+            120.0,
+        );
         assert!(done, "{closest:?}");
         assert!(closest.iter().all(|d| (d - 0.6).abs() < 0.1), "{closest:?}");
         assert!(nearest > 0.45, "came within {nearest:.3} m of a platform");

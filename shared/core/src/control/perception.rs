@@ -305,9 +305,12 @@ impl Perception {
                 BlobColour::Red => self.config.max_range,
                 BlobColour::Blue => self.config.max_container_range,
             };
-            let Some(fix) =
-                self.intersect(blob.centroid(), &input.tool_pose, input.object_height, max_range)
-            else {
+            let Some(fix) = self.intersect(
+                blob.centroid(),
+                &input.tool_pose,
+                input.object_height,
+                max_range,
+            ) else {
                 continue;
             };
             // Nearest to the prior wins (blobs too far from it are other cubes, e.g. ones

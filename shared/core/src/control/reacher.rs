@@ -565,9 +565,9 @@ mod tests {
         // Independent check of t_A at the trigger. The base passes the object (3 m ahead) with it
         // 0.6 m to its right and enters range when the arm base (0.15 m ahead of the base) is
         // 0.75 m from it: the pre-grasp point is then at (0.6, −0.6, 0.5) in the base frame.
-        // From the ready tool point (0.634, 0, 0.7926) that is 0.668 m, at k_A·v_F = 0.15 m/s.
+        // From the ready tool point (0.634, 0, 0.7926) that is 0.668 m, at k_A·v_F.
         let distance = (Vector3::new(0.6, -0.6, 0.5) - Vector3::new(0.634, 0.0, 0.7926)).norm();
-        let expected: f64 = distance / (0.5 * 0.3);
+        let expected: f64 = distance / (ReacherConfig::default().arm_speed_ratio * 0.3);
         assert!(
             (first.output.transit_time - expected).abs() < 0.05,
             "t_A {:.3} s at the trigger, expected {expected:.3} s",
@@ -592,17 +592,20 @@ mod tests {
             .position(|s| error(s) < 0.005)
             .expect("never arrived");
         let (arrived, entered) = (samples[arrival].time, samples[entry].time);
+        // Within 0.6 s of range entry: the base follows a planned route onto the run-in, which
+        // pure pursuit shortens a little in the turn, and for an object moving across the path
+        // t_R along that route runs up to half a second long, so the reach starts that late.
         assert!(
-            arrived <= entered + 0.2,
+            arrived <= entered + 0.6,
             "arrived at {arrived:.2} s, range entry at {entered:.2} s"
         );
         assert!(
             arrived > entered - 1.0,
             "arrived at {arrived:.2} s, long before {entered:.2} s"
         );
-        // From one trajectory floor (0.2 s) after range entry, the tool stays on the moving
+        // From one trajectory floor (0.2 s) after arrival, the tool stays on the moving
         // pre-grasp point with the object's velocity, top-down.
-        let settled = entry + 10;
+        let settled = arrival.max(entry) + 10;
         for s in &samples[settled..settled + 25] {
             assert!(
                 error(s) < 0.002,

@@ -245,7 +245,9 @@ mod tests {
     use super::*;
 
     fn close(a: &BasePose, b: &BasePose) -> bool {
-        (a.x - b.x).abs() < 1e-6 && (a.y - b.y).abs() < 1e-6 && wrap_angle(a.yaw - b.yaw).abs() < 1e-6
+        (a.x - b.x).abs() < 1e-6
+            && (a.y - b.y).abs() < 1e-6
+            && wrap_angle(a.yaw - b.yaw).abs() < 1e-6
     }
 
     #[test]
@@ -267,7 +269,10 @@ mod tests {
                     );
                     let path = DubinsPath::shortest(&start, &goal, 0.6);
                     let end = path.sample(path.length());
-                    assert!(close(&end, &goal), "{start:?} → {goal:?}: {path:?} ends at {end:?}");
+                    assert!(
+                        close(&end, &goal),
+                        "{start:?} → {goal:?}: {path:?} ends at {end:?}"
+                    );
                 }
             }
         }
@@ -278,7 +283,9 @@ mod tests {
         // A fixed pseudo-random sequence of starts and goals up to 8 m apart.
         let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
         let mut next = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (state >> 11) as f64 / (1u64 << 53) as f64
         };
         for _ in 0..5000 {
@@ -292,7 +299,10 @@ mod tests {
             let paths = paths.into_iter().chain(led);
             for path in paths {
                 let end = path.sample(path.length());
-                assert!(close(&end, &goal), "{start:?} → {goal:?}: {path:?} ends at {end:?}");
+                assert!(
+                    close(&end, &goal),
+                    "{start:?} → {goal:?}: {path:?} ends at {end:?}"
+                );
             }
         }
     }
@@ -302,7 +312,8 @@ mod tests {
         let start = BasePose::new(0.0, 0.0, 0.0);
         let ahead = DubinsPath::shortest(&start, &BasePose::new(3.0, 0.0, 0.0), 0.5);
         assert!((ahead.length() - 3.0).abs() < 1e-9);
-        let behind = DubinsPath::shortest(&start, &BasePose::new(0.0, 2.0, std::f64::consts::PI), 0.5);
+        let behind =
+            DubinsPath::shortest(&start, &BasePose::new(0.0, 2.0, std::f64::consts::PI), 0.5);
         // Half a turn of radius 0.5 and the 1 m between the two half-circles' ends.
         assert!((behind.length() - (std::f64::consts::PI * 0.5 + 1.0)).abs() < 1e-6);
         assert!(behind.curvature(0.1) > 0.0);
