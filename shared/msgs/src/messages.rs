@@ -5,8 +5,10 @@ use iceoryx2::prelude::ZeroCopySend;
 use crate::validate::Check;
 use crate::{Header, Message, RejectReason, Rejection};
 
-/// Largest arm supported by the fixed-size joint arrays (Panda and Fetch: 7, UR5: 6).
-pub const MAX_ARM_JOINTS: usize = 7;
+/// Largest arm supported by the fixed-size joint arrays: Fetch's torso lift and seven arm joints
+/// (the Panda has 7, the UR5 6). At 7 every Fetch joint state was rejected (`joint_count` out of
+/// range) and nothing moved.
+pub const MAX_ARM_JOINTS: usize = 8;
 
 /// Palm camera image width, pixels (docs/algorithms.md: 320×240 RGB8).
 pub const CAMERA_WIDTH: usize = 320;
