@@ -109,7 +109,7 @@ impl ArmPhysics for SimArm {
     fn step(&mut self, dq_c: &[f64; 7], _dt: f64) {
         let mut m = ArmVelocityCommand::zeroed();
         m.joint_count = 7;
-        m.velocity = *dq_c;
+        m.velocity[..7].copy_from_slice(dq_c);
         if let Err(e) = self.command.publish(m) {
             motm_bus::say!("fake-panda: {e}");
         }

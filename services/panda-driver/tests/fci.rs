@@ -122,7 +122,7 @@ impl Stack {
             if let Some(v) = velocity {
                 let mut m = ArmVelocityCommand::zeroed();
                 m.joint_count = 7;
-                m.velocity = [v; 7];
+                m.velocity[..7].fill(v);
                 self.command.publish(m).unwrap();
             }
             self.joints.update().ok();

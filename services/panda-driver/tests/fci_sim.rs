@@ -127,7 +127,7 @@ fn sim_world_fake_panda_and_the_fci_driver_move_and_grasp_together() {
                 if let Some(v) = v {
                     let mut m = ArmVelocityCommand::zeroed();
                     m.joint_count = 7;
-                    m.velocity = v;
+                    m.velocity[..7].copy_from_slice(&v);
                     command.publish(m).unwrap();
                 }
                 joints.update().ok();

@@ -92,7 +92,7 @@ impl Feeder {
 fn joint_state(position: [f64; 7]) -> JointState {
     let mut joints = JointState::zeroed();
     joints.joint_count = 7;
-    joints.position = position;
+    joints.position[..7].copy_from_slice(&position);
     joints
 }
 

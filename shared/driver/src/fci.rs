@@ -254,8 +254,8 @@ pub fn run_fci(
         task.set_hardware_hold(stopping_for_exit || blocked);
         let mut joints = JointState::zeroed();
         joints.joint_count = 7;
-        joints.position = state.q;
-        joints.velocity = state.dq;
+        joints.position[..7].copy_from_slice(&state.q);
+        joints.velocity[..7].copy_from_slice(&state.dq);
         inputs.hw_state = Some(from_hardware(joints, state.message_id, now_ns));
         if let Some(hand) = &mut hand
             && let Some(s) = hand.poll().map_err(|e| (EXIT_FAILED, e.to_string()))?

@@ -49,8 +49,8 @@ fn joint_state() -> JointState {
         header: header(),
         joint_count: 7,
         reserved: 0,
-        position: [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785],
-        velocity: [0.1; 7],
+        position: [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.785, 0.0],
+        velocity: [0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.0],
     }
 }
 
@@ -239,7 +239,7 @@ fn arm_velocity_command_rejects_bad_fields() {
         header: header(),
         joint_count: 6,
         resolver_id: 2,
-        velocity: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0],
+        velocity: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.0, 0.0],
     };
     assert_eq!(check(&ok), Ok(()));
     let mut m = ok;

@@ -2,7 +2,7 @@
 //! odometry, the selected target estimate and the final-phase controller's progress).
 //!
 //! Choices:
-//! - **Target of the current task**: for a perceived task (pick or press,
+//! - **Target of the current task**: for a perceived task (pick, place or press,
 //!   [`TaskKind::is_perceived`]), the estimate the caller selected for it (perception's, by the
 //!   stack's one selection rule, `crate::stack::TargetSelector`), otherwise the mission's known
 //!   position.

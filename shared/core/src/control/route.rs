@@ -52,7 +52,7 @@ impl DubinsPath {
         Self::words(start, goal, radius)
             .into_iter()
             .next()
-            .unwrap_or_else(|| Self {
+            .unwrap_or(Self {
                 start: *start,
                 lead: 0.0,
                 radius,

@@ -8,7 +8,7 @@
 //! as a [`MissionView`].
 //!
 //! Choices (shared by every service):
-//! - **Target of the current task**: for a pick or a press ([`TaskKind::is_perceived`]),
+//! - **Target of the current task**: for a pick, a place or a press ([`TaskKind::is_perceived`]),
 //!   perception's estimate once one has been published for that task; otherwise the mission's
 //!   position of the target (the runner's rule). An estimate belongs to the current task when
 //!   perception made it for that task: each estimate carries the index of the task perception

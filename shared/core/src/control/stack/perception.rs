@@ -1,4 +1,4 @@
-//! The perception process: estimates of the current pick's cube or press's button cap from
+//! The perception process: estimates of the current pick's cube, place's container or press's button cap from
 //! palm-camera images (see [`TaskKind::is_perceived`]), each
 //! image paired with the tool pose the robot believed it had when the image was taken.
 //!
