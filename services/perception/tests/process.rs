@@ -101,7 +101,7 @@ fn perception_process_estimates_the_cube_in_view_and_drops_malformed_images() {
                 .unwrap();
             let mut joints = JointState::zeroed();
             joints.joint_count = 7;
-            joints.position.copy_from_slice(&q);
+            joints.position[..7].copy_from_slice(&q);
             joints_out.publish(joints).unwrap();
             odometry_out.publish(BaseOdometry::zeroed()).unwrap();
         };

@@ -121,7 +121,7 @@ fn joint_state_rejects_bad_fields() {
     m.velocity[1] = -(envelope::JOINT_VELOCITY + 0.1);
     assert_rejected(&m, "velocity", Some(1), out_of_range);
 
-    for count in [0, 8] {
+    for count in [0, MAX_ARM_JOINTS as u32 + 1] {
         let mut m = joint_state();
         m.joint_count = count;
         assert_rejected(&m, "joint_count", None, out_of_range);

@@ -74,6 +74,14 @@ fn every_shipped_scenario_loads() {
         "exp1-dynamic",
         "exp1-static",
         "exp2",
+        "mission-alternating-sides",
+        "mission-fetch-u-turn",
+        "mission-husky-zigzag",
+        "mission-place-behind",
+        "mission-press-between",
+        "mission-three-mixed",
+        "mission-u-turn-place",
+        "mission-zigzag",
         "platforms-fetch",
         "platforms-frankie",
         "platforms-husky_ur5",
@@ -222,13 +230,13 @@ fn a_button_after_an_object_is_pressed_right_after_its_place() {
         "{VALID}\n[[objects]]\nposition = [6.0, 0.0, 0.45]\nmotion = \"static\"\nplace = [8.0, 0.0, 0.35]\n\n\
          [[buttons]]\nposition = [5.0, 0.0, 0.5]\nafter_object = 0\n"
     );
-    let s = Scenario::from_toml_str(Path::new("example.toml"), &text).unwrap();
+    let s = Scenario::from_toml_str(Path::new("scenarios/bad.toml"), &text).unwrap();
     let kinds: Vec<TaskKind> = s.mission_tasks().iter().map(|t| t.kind).collect();
     // The button names object 0: it is pressed between its place and the next pick.
     use TaskKind::{Pick, Place, PressButton};
     assert_eq!(kinds, [Pick, Place, PressButton, Pick, Place]);
     let bad = text.replace("after_object = 0", "after_object = 7");
-    let message = Scenario::from_toml_str(Path::new("example.toml"), &bad)
+    let message = Scenario::from_toml_str(Path::new("scenarios/bad.toml"), &bad)
         .unwrap_err()
         .to_string();
     assert_names(&message, "buttons[0].after_object");
