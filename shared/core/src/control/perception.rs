@@ -63,10 +63,11 @@ pub struct PerceptionConfig {
     /// A blob within this distance of the last fix is accepted too, so that a wrong velocity
     /// (whose prediction runs away) can never lock the object out.
     pub max_prior_distance: f64,
-    /// Before the first fix, a blob whose fix is farther than this from the hint (the task's
-    /// known position) is another object, m. 0.6 m: wider than `max_prior_distance`, because
-    /// the hint is a world position while the fixes are in the odometry frame, which drifts by
-    /// about 1 % of the distance driven (tens of centimetres over a long mission).
+    /// A container's fix farther than this from its known position is something else, m. 0.6 m:
+    /// wider than `max_prior_distance`, because the known position is in the world frame while
+    /// the fixes are in the odometry frame, which drifts by about 1 % of the distance driven
+    /// (tens of centimetres over a long mission). Cubes and button caps keep the narrower gate
+    /// even for their first fix: far, grazing views of a cap put its fix half a metre off.
     pub max_hint_distance: f64,
     /// A pixel is blue (a container) when its blue channel is at least this (8-bit). Default 80.
     pub min_blue: u8,
@@ -324,10 +325,9 @@ impl Perception {
             };
             // Nearest to the prior wins (blobs too far from it are other cubes, e.g. ones
             // already in a container); without a prior, the largest blob.
-            let gate = if tracked {
-                self.config.max_prior_distance
-            } else {
-                self.config.max_hint_distance
+            let gate = match input.colour {
+                BlobColour::Red => self.config.max_prior_distance,
+                BlobColour::Blue => self.config.max_hint_distance,
             };
             let score = match distance(fix) {
                 Some(d) if d > gate => continue,
