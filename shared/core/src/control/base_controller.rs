@@ -526,7 +526,7 @@ impl BaseController {
         obstacles.extend([target, next]);
 
         // Once passed, the base goes straight on to the end of the run-out (the lift, the drop
-        // or the press happen there), and beyond it, while the task is still not done, it slows
+        // or the press happen there); from ξ_C on, while the task is still not done, it slows
         // to give the arm the time it needs.
         let current_pass = self.current.plan.map(|plan| plan.pose(target, r_c));
         let on_run_out = self.passed
@@ -687,12 +687,9 @@ impl BaseController {
                 // Close in (the arm is already reaching for the target), or the target moved a
                 // little: the plan stays, only the route to it is planned again, so that the
                 // route driven (and t_R along it) is the one to where the target is now.
-                let start = along(&plan.pose(target, r_c), -config.run_in);
                 let planned_at = route.planned_at;
                 approach.route = Some(KeptRoute {
-                    path: self
-                        .clear_route(base, &start, radius, obstacles)
-                        .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius)),
+                    path: self.route_to(base, &plan, target, radius, obstacles),
                     progress: 0.0,
                     target,
                     planned_at,
@@ -750,21 +747,19 @@ impl BaseController {
             // shortest, blocked or not, and plans again next step.
             None => candidates
                 .iter()
-                .copied()
-                .min_by(|a, b| {
-                    self.length(base, target, a, radius)
-                        .total_cmp(&self.length(base, target, b, radius))
+                .map(|plan| {
+                    let start = self.run_in_start(plan, target);
+                    (*plan, DubinsPath::shortest(base, &start, radius).length())
                 })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(plan, _)| plan)
                 .unwrap_or(PassPlan {
                     side: PassSide::Left,
                     heading: base.yaw,
                 }),
         };
-        let start = along(&plan.pose(target, r_c), -config.run_in);
         approach.plan = Some(plan);
-        let path = self
-            .clear_route(base, &start, radius, obstacles)
-            .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius));
+        let path = self.route_to(base, &plan, target, radius, obstacles);
         if approach.blocked {
             approach.route = None;
             return Route::Path(path, 0.0);
@@ -798,10 +793,27 @@ impl BaseController {
         }
     }
 
-    /// Length of the route to the start of `plan`'s run-in (ignoring clearance).
-    fn length(&self, base: &BasePose, target: Vector2<f64>, plan: &PassPlan, radius: f64) -> f64 {
-        let pass = plan.pose(target, self.config.closest_approach_radius);
-        DubinsPath::shortest(base, &along(&pass, -self.config.run_in), radius).length()
+    /// The start of `plan`'s run-in for a target at `target`: `run_in` before ξ_C.
+    fn run_in_start(&self, plan: &PassPlan, target: Vector2<f64>) -> BasePose {
+        along(
+            &plan.pose(target, self.config.closest_approach_radius),
+            -self.config.run_in,
+        )
+    }
+
+    /// The route from `base` to the start of `plan`'s run-in: the shortest clear one, or the
+    /// shortest blocked or not when none is clear.
+    fn route_to(
+        &self,
+        base: &BasePose,
+        plan: &PassPlan,
+        target: Vector2<f64>,
+        radius: f64,
+        obstacles: &[Vector2<f64>],
+    ) -> DubinsPath {
+        let start = self.run_in_start(plan, target);
+        self.clear_route(base, &start, radius, obstacles)
+            .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius))
     }
 
     /// The length of the route past `target` with `plan` and on toward `next`, or `None` when
@@ -825,8 +837,9 @@ impl BaseController {
             }
             config.run_out - u
         } else {
-            let path = self.clear_route(base, &along(&pass, -config.run_in), radius, obstacles)?;
-            if !self.clear_line(&along(&pass, -config.run_in), straight, obstacles) {
+            let start = self.run_in_start(plan, target);
+            let path = self.clear_route(base, &start, radius, obstacles)?;
+            if !self.clear_line(&start, straight, obstacles) {
                 return None;
             }
             path.length() + config.turn_cost * path.turning() + straight

@@ -186,22 +186,6 @@ impl DubinsPath {
         }
         advance(&pose, Segment::Straight, left, self.radius)
     }
-
-    /// The signed curvature at `distance` along the path, 1/m (positive turning left).
-    pub fn curvature(&self, distance: f64) -> f64 {
-        let mut left = distance.max(0.0);
-        for (kind, length) in std::iter::once((Segment::Straight, self.lead)).chain(self.segments) {
-            if left < length {
-                return match kind {
-                    Segment::Left => 1.0 / self.radius,
-                    Segment::Right => -1.0 / self.radius,
-                    Segment::Straight => 0.0,
-                };
-            }
-            left -= length;
-        }
-        0.0
-    }
 }
 
 /// The pose reached from `pose` along one segment of kind `kind` and length `s`, m.
@@ -244,6 +228,12 @@ pub fn pursue(base: &BasePose, point: Vector2<f64>, speed: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// Asserts that `path` ends on `goal`.
+    fn assert_ends_at(path: &DubinsPath, goal: &BasePose) {
+        let end = path.sample(path.length());
+        assert!(close(&end, goal), "{path:?} ends at {end:?}, not {goal:?}");
+    }
+
     fn close(a: &BasePose, b: &BasePose) -> bool {
         (a.x - b.x).abs() < 1e-6
             && (a.y - b.y).abs() < 1e-6
@@ -267,12 +257,7 @@ mod tests {
                         start.y + r * a.sin(),
                         wrap_angle(1.3 * j as f64 - 0.7 * i as f64),
                     );
-                    let path = DubinsPath::shortest(&start, &goal, 0.6);
-                    let end = path.sample(path.length());
-                    assert!(
-                        close(&end, &goal),
-                        "{start:?} → {goal:?}: {path:?} ends at {end:?}"
-                    );
+                    assert_ends_at(&DubinsPath::shortest(&start, &goal, 0.6), &goal);
                 }
             }
         }
@@ -298,11 +283,7 @@ mod tests {
             assert!(led.iter().all(|p| p.lead == 0.7 && p.start == start));
             let paths = paths.into_iter().chain(led);
             for path in paths {
-                let end = path.sample(path.length());
-                assert!(
-                    close(&end, &goal),
-                    "{start:?} → {goal:?}: {path:?} ends at {end:?}"
-                );
+                assert_ends_at(&path, &goal);
             }
         }
     }
@@ -316,7 +297,7 @@ mod tests {
             DubinsPath::shortest(&start, &BasePose::new(0.0, 2.0, std::f64::consts::PI), 0.5);
         // Half a turn of radius 0.5 and the 1 m between the two half-circles' ends.
         assert!((behind.length() - (std::f64::consts::PI * 0.5 + 1.0)).abs() < 1e-6);
-        assert!(behind.curvature(0.1) > 0.0);
+        assert_eq!(behind.segments[0].0, Segment::Left);
     }
 
     #[test]
