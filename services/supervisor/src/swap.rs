@@ -14,8 +14,8 @@
 //! 2. wait for its `Running` heartbeat (a real loop iteration) and for it to command steadily
 //!    (`hot_swap.steady_commands` commands on time, from its first command sample; a fixed variant publishes only while the current task is of its kind, so the swap waits
 //!    for such a task, up to the command timeout); the old controller keeps control meanwhile;
-//! 3. flip `CONTROL_ACTIVE_CONTROLLER` to the new id (timed midway between an old command and
-//!    the new controller's next one, [`flip_time`]), hand the new process to the process
+//! 3. flip `CONTROL_ACTIVE_CONTROLLER` to the new id (timed midway between two commands, a
+//!    quarter period clear of both, [`flip_time`]), hand the new process to the process
 //!    table (which from then on restarts it, with the new arguments, if it dies) and send the
 //!    old one SIGTERM; it is reaped here and never restarted;
 //! 4. measure the command gap across the flip from the stamps of both controllers' commands

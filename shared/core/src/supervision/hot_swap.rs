@@ -276,15 +276,25 @@ pub fn command_gap(old: &[u64], new: &[u64], flip_ns: u64, window_ns: u64) -> Op
     })
 }
 
-/// When to flip, at or after `now_ns`: midway between one of the old controller's commands and
-/// the new controller's next one, predicted from their last command stamps and the common
-/// `period_ns`. Both controllers run at the same rate with a fixed phase between them, so this
-/// bounds the gap at the flip by half a period (plus jitter) whatever that phase is; flipping
-/// at an arbitrary moment could make it a whole period. The wait is less than one period.
+/// When to flip, at or after `now_ns`, predicted from the controllers' last command stamps and
+/// the common `period_ns`. Over one period there are two moments a flip makes a small gap:
+/// midway from an old command to the new controller's next one (gap `phase / 2`, where `phase`
+/// is how long after an old command the new one comes), and midway from that new command to
+/// the new one after it (gap `(period + phase) / 2`). The first is chosen when it lies at least
+/// a quarter period from the commands on either side (`phase` at least half a period): then a
+/// late wake-up or a late command still leaves the gap under a period. Otherwise the second,
+/// whose gap is at most three quarters of a period and which a late wake-up only shortens. Two
+/// controllers in phase (both woken by the same input's arrival, say) are flipped half a period
+/// after their commands, not at them. The wait is less than one period.
 pub fn flip_time(now_ns: u64, last_old_ns: u64, last_new_ns: u64, period_ns: u64) -> u64 {
     let period = i128::from(period_ns.max(1));
     let phase = (i128::from(last_new_ns) - i128::from(last_old_ns)).rem_euclid(period);
-    let first = i128::from(last_old_ns) + phase / 2;
+    let offset = if 2 * phase >= period {
+        phase / 2
+    } else {
+        (period + phase) / 2
+    };
+    let first = i128::from(last_old_ns) + offset - period;
     let now = i128::from(now_ns);
     let steps = if now > first {
         (now - first + period - 1) / period
@@ -512,24 +522,37 @@ mod tests {
     }
 
     #[test]
-    fn the_flip_falls_midway_between_an_old_command_and_the_next_new_one() {
-        // Old at 100, 105, ...; new 2 ms after each old one: flip at 101 + 5k.
-        assert_eq!(flip_time(103 * MS, 100 * MS, 102 * MS, 5 * MS), 106 * MS);
-        assert_eq!(flip_time(101 * MS, 100 * MS, 102 * MS, 5 * MS), 101 * MS);
-        // New 4 ms after old (= 1 ms before the next old): flip 2 ms after an old command.
+    fn the_flip_falls_midway_between_commands_a_quarter_period_clear_of_them() {
+        // Old at 100, 105, ...; new 4 ms after each old one: flip 2 ms after an old command.
         assert_eq!(flip_time(110 * MS, 100 * MS, 99 * MS, 5 * MS), 112 * MS);
+        assert_eq!(flip_time(103 * MS, 100 * MS, 104 * MS, 5 * MS), 107 * MS);
+        // New 2 ms after each old one: a flip between them would be 1 ms from each, so it falls
+        // midway from a new command to the next new one, 3.5 ms after an old command.
+        assert_eq!(flip_time(101 * MS, 100 * MS, 102 * MS, 5 * MS), 103_500_000);
+        assert_eq!(flip_time(104 * MS, 100 * MS, 102 * MS, 5 * MS), 108_500_000);
+        // In phase (both woken by the same arrival): half a period after their commands.
+        assert_eq!(flip_time(100 * MS + 10, 100 * MS, 100 * MS, 5 * MS), 102_500_000);
         // Never in the past, never a period or more ahead.
         for now in (100..130).map(|t| t * MS + 123) {
             let t = flip_time(now, 100 * MS, 97 * MS, 5 * MS);
             assert!(t >= now && t < now + 5 * MS, "{now} -> {t}");
         }
-        // The gap of a flip there is at most half a period on ideal streams.
+        // On ideal streams of any phase the gap there is at most three quarters of a period, the
+        // flip is timely, and a wake-up up to a quarter period late keeps the gap under a period.
         let old: Vec<u64> = (0..40).map(|k| k * 5 * MS).collect();
-        for lag in 1..5 {
-            let new: Vec<u64> = (0..40).map(|k| (lag + k * 5) * MS).collect();
-            let flip = flip_time(60 * MS, 55 * MS, (50 + lag) * MS, 5 * MS);
+        for lag in (0..20).map(|q| q * MS / 4) {
+            let new: Vec<u64> = (0..40).map(|k| lag + k * 5 * MS).collect();
+            let last_new = new.iter().copied().filter(|&s| s <= 60 * MS).max().unwrap();
+            let flip = flip_time(60 * MS, 60 * MS, last_new, 5 * MS);
             let gap = command_gap(&old, &new, flip, 50 * MS).unwrap();
-            assert!(gap.gap_ns <= 5 * MS / 2, "lag {lag}: {gap:?}");
+            assert!(gap.gap_ns <= 5 * MS * 3 / 4, "lag {lag}: {gap:?}");
+            let late = command_gap(&old, &new, flip + 5 * MS / 4, 50 * MS).unwrap();
+            assert!(late.gap_ns < 5 * MS, "lag {lag}, late wake-up: {late:?}");
+            let (o, n) = (
+                old.iter().copied().filter(|&s| s < flip).max().unwrap(),
+                new.iter().copied().filter(|&s| s < flip).max().unwrap(),
+            );
+            assert!(flip_is_timely(flip, o, n, 5 * MS), "lag {lag}");
         }
     }
 
