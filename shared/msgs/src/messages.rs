@@ -670,6 +670,10 @@ pub struct MissionState {
     pub has_next: u32,
     /// Explicit padding; always zero.
     pub reserved: u32,
+    /// The odometry frame against the world, as the mission estimates it from landmark fixes:
+    /// a world point `p` is at `R(yaw)·p + (x, y)` in odometry, `[x, y, yaw]` (m, rad). The
+    /// targets above are already in odometry; this is for the rest of the known layout.
+    pub odometry_offset: [f64; 3],
 }
 
 message!(MissionState, |m, c| {
@@ -693,7 +697,19 @@ message!(MissionState, |m, c| {
     )?;
     c.all_within("next_target", &m.next_target, envelope::WORLD_POSITION)?;
     flag(c, "has_next", m.has_next)?;
-    padding(c, m.reserved)
+    padding(c, m.reserved)?;
+    c.all_within(
+        "odometry_offset",
+        &m.odometry_offset[..2],
+        envelope::WORLD_POSITION,
+    )?;
+    c.in_range_at(
+        "odometry_offset",
+        Some(2),
+        m.odometry_offset[2],
+        -core::f64::consts::PI,
+        core::f64::consts::PI,
+    )
 });
 
 code_enum!(

@@ -484,8 +484,15 @@ fn mission_state_rejects_bad_fields() {
         next_target: [0.0; 3],
         has_next: 0,
         reserved: 0,
+        odometry_offset: [0.1, -0.2, 0.05],
     };
     assert_eq!(check(&ok), Ok(()));
+    let mut m = ok;
+    m.odometry_offset[2] = 4.0;
+    assert_rejected(&m, "odometry_offset", Some(2), out_of_range);
+    let mut m = ok;
+    m.odometry_offset[0] = f64::INFINITY;
+    assert_rejected(&m, "odometry_offset", Some(0), not_finite);
     assert_rejected(
         &MissionState {
             task_index: 3,

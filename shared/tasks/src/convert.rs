@@ -38,6 +38,7 @@ pub fn mission_state(out: &MissionTrackerOutput) -> msgs::MissionState {
         m.next_target = next.into();
         m.has_next = 1;
     }
+    m.odometry_offset = out.odometry_offset;
     m
 }
 
@@ -78,6 +79,7 @@ pub fn mission_report(m: &msgs::MissionState) -> Option<MissionReport> {
         phase: phase(msgs::TaskPhase::try_from(m.phase).ok()?),
         target: Vector3::from(m.current_target),
         next_waypoint: (m.has_next == 1).then(|| Vector3::from(m.next_target)),
+        odometry_offset: m.odometry_offset,
     })
 }
 

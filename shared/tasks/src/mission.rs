@@ -93,6 +93,7 @@ impl MissionSequencerTask {
             },
             target: now.current_target,
             next_waypoint: now.next_target.unwrap_or(now.current_target),
+            odometry_offset: now.odometry_offset,
         }
     }
 }
@@ -109,7 +110,7 @@ impl Task for MissionSequencerTask {
         self.final_twists.extend(&inputs.final_twists);
         let view = self.view();
         let perceived = inputs.target.as_ref().map(convert::perceived);
-        let estimate = self.selector.select(&view, perceived.as_ref());
+        let selected = self.selector.select_with_source(&view, perceived.as_ref());
         let out = match (&inputs.joints, &inputs.odometry) {
             (Some(joints), Some(odometry)) => {
                 let active = inputs.active.as_ref().map(|a| a.controller_id);
@@ -122,7 +123,8 @@ impl Task for MissionSequencerTask {
                 self.tracker.step(&MissionTrackerInput {
                     base: convert::base_pose(odometry),
                     arm_q: convert::arm_q(joints),
-                    estimate: Some(estimate),
+                    estimate: Some(selected.target),
+                    fix_stamp_ns: selected.image_stamp_ns,
                     final_progress,
                 })
             }

@@ -462,8 +462,13 @@ impl BaseController {
     /// The same controller, keeping its routes' footprint clear of the known positions of the
     /// mission's targets (`layout`: platforms, containers and buttons; only x and y are used).
     pub fn with_layout(mut self, layout: &[nalgebra::Vector3<f64>]) -> Self {
-        self.layout = layout.iter().map(xy).collect();
+        self.set_layout(layout);
         self
+    }
+
+    /// Replaces the known positions the routes keep clear of (see [`BaseController::with_layout`]).
+    pub fn set_layout(&mut self, layout: &[nalgebra::Vector3<f64>]) {
+        self.layout = layout.iter().map(xy).collect();
     }
 
     /// The configuration.
@@ -534,8 +539,13 @@ impl BaseController {
                 let (u, e) = line_offset(b, &pass);
                 u < self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
             });
-        let past_pass =
-            self.passed || current_pass.is_some_and(|pass| line_offset(b, &pass).0 > 0.0);
+        // Past ξ_C means on its line beyond it: being anywhere ahead of ξ_C's heading (a
+        // container passed heading north, seen from a pick-up place north of it) is not.
+        let past_pass = self.passed
+            || current_pass.is_some_and(|pass| {
+                let (u, e) = line_offset(b, &pass);
+                u > 0.0 && u <= self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
+            });
         let speed = if past_pass {
             self.speed() * self.config.linger_speed_fraction
         } else {

@@ -70,6 +70,20 @@ pub struct MissionConfig {
     /// How far past the last target the base keeps driving, m: the "next target" of the last
     /// task, along the direction from the second-to-last target (or the start) to the last one.
     pub run_out_distance: f64,
+    /// How far each perception fix of a landmark moves its anchor toward it, 0–1 (0 turns the
+    /// odometry correction off; `crate::localization`). 0.3: a few fixes (a tenth of a second
+    /// at 30 Hz) settle an anchor, and one stray fix moves it by less than a third.
+    pub landmark_fix_weight: f64,
+    /// Two landmark anchors fix the odometry frame's rotation only when at least this far
+    /// apart, m. 1 m: a centimetre of error in the anchors is then at most 0.6° of rotation.
+    pub landmark_baseline: f64,
+    /// A cube counts as a landmark (standing where the mission knows it) when perception's
+    /// estimate of it is slower than this as the grasp begins, m/s. 0.01 m/s: the moving cubes
+    /// go at 0.03 m/s and more.
+    pub landmark_max_speed: f64,
+    /// A landmark fix farther than this from where the correction puts its known position is
+    /// not used, m (0.3 m: perception's own gate for cubes).
+    pub landmark_max_residual: f64,
 }
 
 impl Default for MissionConfig {
@@ -77,7 +91,65 @@ impl Default for MissionConfig {
         Self {
             final_phase_distance: 0.1,
             run_out_distance: 2.0,
+            landmark_fix_weight: 0.3,
+            landmark_baseline: 1.0,
+            landmark_max_speed: 0.01,
+            landmark_max_residual: 0.3,
         }
+    }
+}
+
+impl MissionConfig {
+    /// Checks the values; `file` is named in the error.
+    pub fn validate(&self, file: &std::path::Path) -> Result<(), crate::ModelError> {
+        let checks = [
+            (
+                "mission.final_phase_distance",
+                self.final_phase_distance,
+                f64::MIN_POSITIVE,
+                f64::MAX,
+            ),
+            (
+                "mission.run_out_distance",
+                self.run_out_distance,
+                0.0,
+                f64::MAX,
+            ),
+            (
+                "mission.landmark_fix_weight",
+                self.landmark_fix_weight,
+                0.0,
+                1.0,
+            ),
+            (
+                "mission.landmark_baseline",
+                self.landmark_baseline,
+                f64::MIN_POSITIVE,
+                f64::MAX,
+            ),
+            (
+                "mission.landmark_max_speed",
+                self.landmark_max_speed,
+                0.0,
+                f64::MAX,
+            ),
+            (
+                "mission.landmark_max_residual",
+                self.landmark_max_residual,
+                f64::MIN_POSITIVE,
+                f64::MAX,
+            ),
+        ];
+        for (key, value, min, max) in checks {
+            if !(value.is_finite() && value >= min && value <= max) {
+                return Err(crate::ModelError::invalid(
+                    file,
+                    key,
+                    format!("must be finite and within [{min}, {max}], got {value}"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

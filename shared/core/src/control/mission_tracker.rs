@@ -12,10 +12,17 @@
 //!   in the final phase: a stale "done" of the previous task can never skip the next one.
 //! - **Next target** is [`Mission::next_waypoint`]: the next task's target, or the run-out
 //!   point beyond the last one, so the base planner never needs the task list.
+//! - **Odometry frame.** The known positions are in the world, the controllers work in
+//!   odometry: the tracker corrects the known positions it publishes with the odometry
+//!   correction ([`OdometryCorrection`]), fed with perception's fixes of landmarks. Containers
+//!   and buttons are landmarks for every fix of theirs; a cube is one only as its grasp begins,
+//!   if perception then sees it still (`landmark_max_speed`), because the robot is never told
+//!   which cubes move.
 
 use nalgebra::Vector3;
 
 use crate::kinematics::BasePose;
+use crate::localization::OdometryCorrection;
 use crate::mission::{Mission, MissionTask, Phase, TaskKind};
 use crate::on_the_move::OnTheMoveConfig;
 use crate::robot::Robot;
@@ -40,6 +47,8 @@ pub struct MissionTrackerInput<'a> {
     pub arm_q: &'a [f64],
     /// The current task's selected estimate (perception's, or the known position), if any.
     pub estimate: Option<TargetEstimate>,
+    /// Capture stamp of the image behind `estimate`, ns, when it is perception's.
+    pub fix_stamp_ns: Option<u64>,
     /// The final-phase controller's latest progress report, if any.
     pub final_progress: Option<FinalProgress>,
 }
@@ -55,10 +64,12 @@ pub struct MissionTrackerOutput {
     pub kind: Option<TaskKind>,
     /// The active phase.
     pub phase: Phase,
-    /// The current task's known position (zero when complete).
+    /// The current task's known position, in odometry (zero when complete).
     pub current_target: Vector3<f64>,
-    /// Where the base heads after the current target (`None` when complete).
+    /// Where the base heads after the current target, in odometry (`None` when complete).
     pub next_target: Option<Vector3<f64>>,
+    /// The odometry frame against the world, `[x, y, yaw]` ([`OdometryCorrection::offset`]).
+    pub odometry_offset: [f64; 3],
     /// Tool-to-aim distance this cycle, m (infinite when it could not be computed).
     pub tool_to_target: f64,
     /// The task or phase changed this cycle.
@@ -71,6 +82,9 @@ pub struct MissionTracker {
     robot: Robot,
     config: OnTheMoveConfig,
     mission: Mission,
+    correction: OdometryCorrection,
+    /// The newest image stamp taken as a landmark fix.
+    last_fix_ns: Option<u64>,
 }
 
 impl MissionTracker {
@@ -83,6 +97,11 @@ impl MissionTracker {
         start: Vector3<f64>,
     ) -> Self {
         Self {
+            correction: OdometryCorrection::new(
+                config.mission.landmark_fix_weight,
+                config.mission.landmark_baseline,
+            ),
+            last_fix_ns: None,
             mission: Mission::new(config.mission.clone(), tasks, start),
             robot,
             config,
@@ -107,8 +126,13 @@ impl MissionTracker {
             task_count: self.mission.tasks().len(),
             kind: task.map(|t| t.kind),
             phase: self.mission.phase(),
-            current_target: task.map_or_else(Vector3::zeros, |t| t.position),
-            next_target: task.map(|t| self.mission.next_waypoint(&t.position)),
+            current_target: task
+                .map_or_else(Vector3::zeros, |t| self.correction.to_odometry(&t.position)),
+            next_target: task.map(|t| {
+                self.correction
+                    .to_odometry(&self.mission.next_waypoint(&t.position))
+            }),
+            odometry_offset: self.correction.offset(),
             tool_to_target,
             changed,
         }
@@ -127,7 +151,7 @@ impl MissionTracker {
             {
                 estimate
             }
-            _ => TargetEstimate::fixed(task.position),
+            _ => TargetEstimate::fixed(self.correction.to_odometry(&task.position)),
         };
         let finite = input.arm_q.len() == self.robot.arm_dof()
             && input.arm_q.iter().all(|q| q.is_finite())
@@ -150,8 +174,44 @@ impl MissionTracker {
             }
             _ => TaskProgress::Active,
         };
+        let (index, phase) = (self.mission.task_index(), self.mission.phase());
         let status = self.mission.step(tool_to_target, progress);
+        if let Some(stamp) = input.fix_stamp_ns {
+            self.locate(index, &task, &target, (phase, status.phase), stamp);
+        }
         self.output(tool_to_target, status.changed)
+    }
+
+    /// Feeds perception's fix `target` (from the image stamped `stamp`) of task `index`,
+    /// `task`, to the odometry correction when the task's object is a landmark at this moment
+    /// (see the module doc): every new fix of a container or a button; a cube's, once, on the
+    /// cycle its grasp begins (`phases` before and after this cycle's step).
+    fn locate(
+        &mut self,
+        index: usize,
+        task: &MissionTask,
+        target: &TargetEstimate,
+        phases: (Phase, Phase),
+        stamp: u64,
+    ) {
+        let config = &self.config.mission;
+        let landmark = match task.kind {
+            TaskKind::Place | TaskKind::PressButton => {
+                self.last_fix_ns.is_none_or(|last| stamp > last)
+            }
+            TaskKind::Pick => {
+                phases == (Phase::Reach, Phase::Final)
+                    && target.velocity.norm() < config.landmark_max_speed
+            }
+        };
+        let residual = (self.correction.to_odometry(&task.position) - target.position)
+            .xy()
+            .norm();
+        if landmark && residual <= config.landmark_max_residual {
+            self.last_fix_ns = Some(self.last_fix_ns.map_or(stamp, |last| last.max(stamp)));
+            self.correction
+                .observe(index, &task.position, &target.position);
+        }
     }
 }
 
@@ -192,6 +252,7 @@ mod tests {
             base,
             arm_q: &READY,
             estimate,
+            fix_stamp_ns: estimate.map(|_| 1),
             final_progress: None,
         }
     }
@@ -270,9 +331,46 @@ mod tests {
             base: BasePose::new(0.0, 0.0, 0.0),
             arm_q: &q,
             estimate: None,
+            fix_stamp_ns: None,
             final_progress: None,
         });
         assert_eq!(out.phase, Phase::Reach);
         assert!(out.tool_to_target.is_infinite());
+    }
+
+    #[test]
+    fn landmark_fixes_correct_the_known_positions_into_odometry() {
+        let tool = Vector3::new(0.634, 0.0, 0.7926);
+        // The cube's known position is 6 cm off where odometry sees it; the container is 3 m on.
+        let seen = tool;
+        let known = tool - Vector3::new(0.06, 0.0, 0.0);
+        let container = Vector3::new(3.0, 0.0, 0.35);
+        let mut t = tracker(pick_place(known, container));
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        // While reaching, a cube's fixes are not used (it may be moving) ...
+        let far = TargetEstimate::fixed(seen + Vector3::new(0.0, 0.2, 0.0));
+        let out = t.step(&input(base, Some(far)));
+        assert_eq!((out.phase, out.odometry_offset), (Phase::Reach, [0.0; 3]));
+        assert_eq!(out.next_target, Some(container));
+        // ... it is a landmark as its grasp begins, seen still: the rest of the mission moves
+        // with it.
+        let out = t.step(&input(base, Some(TargetEstimate::fixed(seen))));
+        assert_eq!(out.phase, Phase::Final);
+        let next = out.next_target.unwrap();
+        assert!(
+            (next - (container + Vector3::new(0.06, 0.0, 0.0))).norm() < 1e-9,
+            "{next}"
+        );
+        // A cube seen moving as its grasp begins corrects nothing.
+        let mut moving = tracker(pick_place(known, container));
+        moving.step(&input(base, Some(far)));
+        let out = moving.step(&input(
+            base,
+            Some(TargetEstimate {
+                position: seen,
+                velocity: Vector3::new(0.03, 0.0, 0.0),
+            }),
+        ));
+        assert_eq!((out.phase, out.odometry_offset), (Phase::Final, [0.0; 3]));
     }
 }

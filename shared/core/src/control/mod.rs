@@ -9,6 +9,7 @@ pub mod base_slip;
 pub mod facing;
 pub mod final_phase;
 pub mod input_check;
+pub mod localization;
 pub mod mission;
 pub mod mission_tracker;
 pub mod on_the_move;

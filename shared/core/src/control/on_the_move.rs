@@ -153,6 +153,7 @@ impl OnTheMoveConfig {
 
     /// Checks the modules' values; `file` is named in the error.
     pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
+        self.mission.validate(file)?;
         self.base.validate(file)?;
         self.reacher.validate(file)?;
         self.final_phase.validate(file)?;
@@ -203,6 +204,10 @@ mod config_file_tests {
             (
                 "[twist_rate]\nlinear_acceleration = nan\n",
                 "linear_acceleration",
+            ),
+            (
+                "[mission]\nlandmark_fix_weight = 2.0\n",
+                "mission.landmark_fix_weight",
             ),
         ];
         for (text, key) in cases {

@@ -94,7 +94,7 @@ impl Default for PerceptionConfig {
             min_pixels: 4,
             velocity_window: 0.5,
             min_velocity_span: 0.1,
-            max_range: 5.0,
+            max_range: 1.5,
             max_container_range: 0.7,
             max_prior_distance: 0.3,
             max_hint_distance: 0.6,

@@ -531,7 +531,10 @@ mod tests {
         assert_eq!(flip_time(101 * MS, 100 * MS, 102 * MS, 5 * MS), 103_500_000);
         assert_eq!(flip_time(104 * MS, 100 * MS, 102 * MS, 5 * MS), 108_500_000);
         // In phase (both woken by the same arrival): half a period after their commands.
-        assert_eq!(flip_time(100 * MS + 10, 100 * MS, 100 * MS, 5 * MS), 102_500_000);
+        assert_eq!(
+            flip_time(100 * MS + 10, 100 * MS, 100 * MS, 5 * MS),
+            102_500_000
+        );
         // Never in the past, never a period or more ahead.
         for now in (100..130).map(|t| t * MS + 123) {
             let t = flip_time(now, 100 * MS, 97 * MS, 5 * MS);

@@ -6,6 +6,7 @@ use crate::base_controller::{
 use nalgebra::Vector3;
 
 use crate::kinematics::BasePose;
+use crate::localization::world_to_odometry;
 use crate::robot::Robot;
 use crate::types::TargetEstimate;
 
@@ -37,16 +38,23 @@ pub struct BasePlannerOutput {
 #[derive(Debug, Clone)]
 pub struct BasePlannerCycle {
     controller: BaseController,
+    /// The mission's known layout, in the world.
+    layout: Vec<Vector3<f64>>,
+    /// The odometry offset the controller's layout was last corrected with.
+    layout_offset: [f64; 3],
     refused: u64,
 }
 
 impl BasePlannerCycle {
     /// A planner for `robot` with `config` (its `forward_speed` is the scenario's base speed),
-    /// routing clear of `layout`, the known positions of the mission's targets.
+    /// routing clear of `layout`, the known positions of the mission's targets in the world
+    /// (corrected into odometry with the mission's odometry offset each cycle).
     pub fn new(robot: &Robot, config: BaseControllerConfig, layout: &[Vector3<f64>]) -> Self {
         Self {
             controller: BaseController::new(config, BaseModel::from_robot(robot))
                 .with_layout(layout),
+            layout: layout.to_vec(),
+            layout_offset: [0.0; 3],
             refused: 0,
         }
     }
@@ -60,6 +68,16 @@ impl BasePlannerCycle {
     /// not finite (counted in [`BasePlannerCycle::refused`]).
     pub fn step(&mut self, input: &BasePlannerInput) -> Option<BasePlannerOutput> {
         let task_index = input.mission.base_task_index();
+        let offset = input.mission.odometry_offset;
+        if offset != self.layout_offset && offset.iter().all(|v| v.is_finite()) {
+            let corrected: Vec<_> = self
+                .layout
+                .iter()
+                .map(|p| world_to_odometry(&offset, p))
+                .collect();
+            self.controller.set_layout(&corrected);
+            self.layout_offset = offset;
+        }
         match self.controller.step(&BaseControllerInput {
             task_index,
             base: input.base,

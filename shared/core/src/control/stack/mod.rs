@@ -52,6 +52,10 @@ pub struct MissionView {
     /// Where the base heads after the current target (the next target, or the run-out point
     /// after the last one), m.
     pub next_waypoint: Vector3<f64>,
+    /// The odometry frame against the world, `[x, y, yaw]`
+    /// ([`crate::localization::OdometryCorrection::offset`]): the targets are already in
+    /// odometry, the rest of the known layout is corrected with this.
+    pub odometry_offset: [f64; 3],
 }
 
 impl MissionView {
@@ -86,6 +90,8 @@ pub struct MissionReport {
     pub target: Vector3<f64>,
     /// Where the base heads after the current target, if the supervisor says.
     pub next_waypoint: Option<Vector3<f64>>,
+    /// The odometry frame against the world, `[x, y, yaw]`.
+    pub odometry_offset: [f64; 3],
 }
 
 /// Turns mission reports into [`MissionView`]s, remembering the last task so that the services
@@ -122,6 +128,7 @@ impl MissionLatch {
                 task_index: report.task_count,
                 task_count: report.task_count,
                 phase: Phase::Complete,
+                odometry_offset: report.odometry_offset,
                 ..last
             });
         }
@@ -142,6 +149,7 @@ impl MissionLatch {
             phase: report.phase,
             target: report.target,
             next_waypoint,
+            odometry_offset: report.odometry_offset,
         };
         self.last = Some(view);
         Some(view)

@@ -32,6 +32,7 @@ fn view(task_index: usize, kind: TaskKind, phase: Phase) -> MissionView {
         phase,
         target: Vector3::new(2.0, 0.0, 0.45),
         next_waypoint: Vector3::new(4.0, 0.0, 0.35),
+        odometry_offset: [0.0; 3],
     }
 }
 
@@ -45,6 +46,7 @@ fn latch_keeps_the_last_task_after_completion_and_fills_in_run_out_points() {
         phase: Phase::Reach,
         target: Vector3::new(2.0, 0.0, 0.45),
         next_waypoint: None,
+        odometry_offset: [0.0; 3],
     };
     // A completed mission whose tasks this process never saw: nothing to act on.
     let complete = MissionReport {
