@@ -24,13 +24,15 @@ fn main() -> ExitCode {
         .deadline(Duration::from_millis(33))
         .run(
             |setup, flags: Flags| {
+                let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
                 Ok(PerceptionTask::new(
                     setup.robot.clone(),
                     PerceptionConfig::default(),
                     setup.camera_calibration(&CameraConfig::default()),
                     flags.history,
                     setup.config.mission.run_out_distance,
-                ))
+                )
+                .with_layout(&tasks.unwrap_or_default()))
             },
             |task| format!("{} estimates", task.published()),
         )

@@ -69,6 +69,7 @@ fn frame_input<'a>(
         tool_pose: *tool_pose,
         object_height: 0.435,
         target_hint: None,
+        neighbours: &[],
         colour: motm_core::perception::BlobColour::Red,
     }
 }

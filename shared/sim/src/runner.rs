@@ -250,12 +250,12 @@ impl Taps {
 }
 
 /// The front of every method's graph: `sim` as the hardware, the two drivers and, when
-/// `perceive`, perception, at their rows' rates.
+/// `perceive` names the mission's tasks, perception, at their rows' rates.
 fn hardware_graph(
     robot: &Robot,
     sim: SimWorld,
     config: &RunnerConfig,
-    perceive: bool,
+    perceive: Option<&[motm_core::mission::MissionTask]>,
 ) -> Result<Scheduler, String> {
     let physics_step_ns = (config.physics_step * 1e9).round() as u64;
     let control = config.control_rate_hz;
@@ -286,7 +286,7 @@ fn hardware_graph(
         &motm_graph::LD60_DRIVER,
         base_rate,
     );
-    if perceive {
+    if let Some(tasks) = perceive {
         s.add(
             PerceptionTask::new(
                 robot.clone(),
@@ -294,7 +294,8 @@ fn hardware_graph(
                 calibration,
                 PERCEPTION_HISTORY,
                 config.motm.mission.run_out_distance,
-            ),
+            )
+            .with_layout(tasks),
             &motm_graph::PERCEPTION,
             rate(&motm_graph::PERCEPTION),
         );
@@ -318,11 +319,12 @@ pub fn motm_graph(
         rate_hz: config.control_rate_hz,
     };
     let start = scenario.start();
-    let mut s = hardware_graph(robot, sim, config, true)?;
+    let tasks = scenario.mission_tasks();
+    let mut s = hardware_graph(robot, sim, config, Some(&tasks))?;
     motm_tasks::graph::add_control_tasks(
         &mut s,
         &setup,
-        scenario.mission_tasks(),
+        tasks,
         Vector3::new(start.x, start.y, 0.0),
     );
     Ok(s)
@@ -343,7 +345,7 @@ fn baseline_graph(
         let mut reactive = config.reactive.clone();
         reactive.max_base_speed = scenario.base_speed;
         let baseline = ReactiveBaseline::new(robot.clone(), reactive, tasks.clone());
-        let mut s = hardware_graph(robot, sim, config, true)?;
+        let mut s = hardware_graph(robot, sim, config, Some(&tasks))?;
         s.add(
             ReactiveTask::new(baseline, tasks),
             &motm_graph::REACTIVE,
@@ -370,7 +372,7 @@ fn baseline_graph(
         Err(e) => return Ok(Err(format!("plan_failed: {e}"))),
     };
     let resolver = RedundancyResolver::for_robot(robot, config.motm.resolver.clone());
-    let mut s = hardware_graph(robot, sim, config, false)?;
+    let mut s = hardware_graph(robot, sim, config, None)?;
     s.add(
         PlanningTask::new(robot.clone(), tracker, resolver, tasks),
         &motm_graph::PLANNING,

@@ -74,6 +74,7 @@ fn observe(
         tool_pose: *tool_pose,
         object_height: CUBE_Z,
         target_hint: None,
+        neighbours: &[],
         colour: motm_core::perception::BlobColour::Red,
     })
 }

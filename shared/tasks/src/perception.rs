@@ -81,6 +81,12 @@ impl PerceptionTask {
         }
     }
 
+    /// The same, knowing the mission's `tasks` (see [`PerceptionCycle::with_layout`]).
+    pub fn with_layout(mut self, tasks: &[motm_core::mission::MissionTask]) -> Self {
+        self.cycle = self.cycle.with_layout(tasks);
+        self
+    }
+
     /// Estimates published so far.
     pub fn published(&self) -> u64 {
         self.published

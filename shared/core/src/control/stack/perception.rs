@@ -9,10 +9,11 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector3};
 
 use crate::camera::CameraCalibration;
-use crate::mission::TaskKind;
+use crate::localization::world_to_odometry;
+use crate::mission::{MissionTask, TaskKind};
 use crate::perception::{
     BlobColour, ObjectEstimate, Perception, PerceptionConfig, PerceptionInput,
 };
@@ -52,6 +53,10 @@ pub struct PerceptionCycle {
     task: Option<usize>,
     history: VecDeque<(u64, Isometry3<f64>)>,
     fix_stamp_ns: u64,
+    /// The mission's tasks (their kinds and known world positions), for the neighbours.
+    layout: Vec<MissionTask>,
+    /// Scratch: the current target's neighbours, in odometry.
+    neighbours: Vec<Vector3<f64>>,
 }
 
 impl PerceptionCycle {
@@ -70,6 +75,31 @@ impl PerceptionCycle {
             task: None,
             history: VecDeque::new(),
             fix_stamp_ns: 0,
+            layout: Vec::new(),
+            neighbours: Vec::new(),
+        }
+    }
+
+    /// The same, knowing the mission's `tasks`: the objects of later tasks still stand where
+    /// the mission knows them, and tell the current target from its neighbours
+    /// ([`PerceptionInput::neighbours`]).
+    pub fn with_layout(mut self, tasks: &[MissionTask]) -> Self {
+        self.layout = tasks.to_vec();
+        self
+    }
+
+    /// The known positions, in odometry, of the objects of the target's colour that later tasks
+    /// of `mission` name (other than the target itself).
+    fn find_neighbours(&mut self, mission: &MissionView) {
+        let red = |kind: TaskKind| kind != TaskKind::Place;
+        self.neighbours.clear();
+        for task in self.layout.iter().skip(mission.task_index + 1) {
+            let p = world_to_odometry(&mission.odometry_offset, &task.position);
+            let distinct = (p - mission.target).xy().norm() > 0.01
+                && self.neighbours.iter().all(|n| (n - p).xy().norm() > 0.01);
+            if red(task.kind) == red(mission.kind) && distinct {
+                self.neighbours.push(p);
+            }
         }
     }
 
@@ -112,6 +142,7 @@ impl PerceptionCycle {
             .history
             .iter()
             .min_by_key(|(stamp, _)| stamp.abs_diff(frame.stamp_ns))?;
+        self.find_neighbours(mission);
         let estimate = self.perception.step(&PerceptionInput {
             image: frame.pixels,
             width: frame.width,
@@ -125,6 +156,7 @@ impl PerceptionCycle {
             } else {
                 BlobColour::Red
             },
+            neighbours: &self.neighbours,
         });
         if estimate.visible {
             self.fix_stamp_ns = frame.stamp_ns;
