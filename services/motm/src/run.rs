@@ -160,6 +160,8 @@ pub struct RunReport {
     pub faults_injected: Vec<FaultRecord>,
     /// The hot swaps requested with `--swap`, with their measured command gap.
     pub swaps: Vec<SwapReport>,
+    /// What the logger read and lost (`--mcap`, `--live`); null without a logger.
+    pub logger: Option<crate::run_mcap::LoggerLoss>,
 }
 
 /// Frame-to-command latencies of one run, from the QP status stream, µs.
@@ -663,7 +665,7 @@ pub fn run_stack(
     let fake_robot_violations = fake_robot_violations.map_err(CliError::Failed)?;
     let (trial, latencies, processes, drivers, faults_injected, safe_stops, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
-    logger_exit.transpose()?;
+    let logger = logger_exit.transpose()?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         motm_bus::say!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }
@@ -686,6 +688,7 @@ pub fn run_stack(
         safe_stops,
         faults_injected,
         swaps,
+        logger,
     };
     Ok((report, latencies))
 }
@@ -803,6 +806,15 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
             s.new_pid,
             s.command_gap_ms,
             s.base_speed
+        );
+    }
+    if let Some(l) = &report.logger {
+        println!(
+            "logger: {} samples read, {} lost ({:.1} %; a full queue drops its oldest sample), {} records dropped",
+            l.samples_received,
+            l.samples_lost,
+            100.0 * l.lost_fraction,
+            l.records_dropped
         );
     }
     Ok(())
