@@ -537,13 +537,15 @@ pub fn run_stack(
         .map_err(|e| CliError::Failed(format!("cannot create {}: {e}", fake_reports.display())))?;
     let _ = std::fs::create_dir_all(registry_dir());
     let _ = std::fs::write(&registry, format!("{}\n", std::process::id()));
+    let iox2 = crate::status::write_iox2_config(&ipc).map_err(CliError::Failed)?;
     motm_bus::say!(
-        "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`)",
+        "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`; iceoryx2's tools: `cd {} && iox2 service list`)",
         scenario.name,
         scenario.base_speed,
         rate,
         ipc.prefix,
-        ipc.prefix
+        ipc.prefix,
+        iox2.display()
     );
 
     let wall = Instant::now();
@@ -689,6 +691,7 @@ pub fn run_stack(
     }
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
+    let _ = std::fs::remove_dir_all(&iox2);
     let fake_robot_violations = fake_robot_violations(&fake_reports);
     let _ = std::fs::remove_dir_all(&fake_reports);
     let fake_robot_violations = fake_robot_violations.map_err(CliError::Failed)?;
