@@ -38,6 +38,12 @@ impl<M> Typed<M> {
     }
 }
 
+impl<M> Default for Typed<M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl<M: Message> Kind for Typed<M> {
     fn id(&self) -> PayloadId {
         PayloadId {

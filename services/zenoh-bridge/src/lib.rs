@@ -27,7 +27,7 @@ pub mod lanes;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
+use std::sync::mpsc::{Receiver, Sender, channel};
 use std::time::Duration;
 
 use motm_bus::{Bus, IpcConfig, LoopConfig, Qos, ServiceLoop, Trigger, monotonic_now_ns};
@@ -252,10 +252,7 @@ impl Importer {
     /// samples were published.
     pub fn poll(&mut self, timeout: Duration) -> usize {
         let mut published = 0;
-        let mut next = match self.received.recv_timeout(timeout) {
-            Ok(item) => Some(item),
-            Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => None,
-        };
+        let mut next = self.received.recv_timeout(timeout).ok();
         while let Some((lane, bytes)) = next {
             if self.import(lane, &bytes) {
                 published += 1;
