@@ -11,7 +11,7 @@ pub fn workspace_root() -> PathBuf {
 
 /// The packages of the stack's binaries: `motm run` only builds missing ones, so the tests
 /// build them all first to never run a stale binary.
-pub const STACK_PACKAGES: [&str; 14] = [
+pub const STACK_PACKAGES: [&str; 15] = [
     "motm",
     "motm-supervisor",
     "motm-sim-world",
@@ -26,6 +26,7 @@ pub const STACK_PACKAGES: [&str; 14] = [
     "motm-logger",
     "motm-fake-panda",
     "motm-fake-ld60",
+    "motm-zenoh",
 ];
 
 /// Every process of a Frankie run (the names of their heartbeats): the graph's processes, in

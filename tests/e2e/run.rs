@@ -4,7 +4,7 @@
 //! with the task time within 3 %, is `equivalence.rs`.)
 
 use motm_bus::IpcConfig;
-use motm_e2e::{assert_nothing_left, motm, motm_json, stack_processes};
+use motm_e2e::{assert_nothing_left, motm, motm_json, one_stack_at_a_time, stack_processes};
 
 /// Runs `motm run --json <extra>` with a fresh prefix; returns the report, whether the exit
 /// status was success, and stderr. Checks on the way what every run must satisfy, success or
@@ -45,10 +45,33 @@ fn run_and_check(extra: &[&str]) -> (serde_json::Value, bool, String) {
 
 #[test]
 fn motm_run_exp1_dynamic_succeeds() {
+    let _one = one_stack_at_a_time();
     let (report, exit_ok, stderr) = run_and_check(&[]);
     assert_eq!(report["success"], true, "{report}\n{stderr}");
     assert!(exit_ok, "{stderr}");
     assert!(report["failure"].is_null(), "{report}");
+}
+
+/// "Two hosts": perception on its own iceoryx2 prefix, its inputs and its target carried by
+/// two zenoh peers on loopback TCP (multicast scouting off), and the task still completes.
+/// Perception's heartbeat reaches the stack only through the bridge, so `run_and_check`
+/// finding it cycling shows the bridge carried it.
+#[test]
+fn motm_run_with_perception_on_a_remote_host_behind_zenoh_succeeds() {
+    let _one = one_stack_at_a_time();
+    let (report, exit_ok, stderr) = run_and_check(&["--remote", "perception"]);
+    assert_eq!(report["success"], true, "{report}\n{stderr}");
+    assert!(exit_ok, "{stderr}");
+    let processes = report["processes"].as_array().unwrap();
+    for bridge in [motm_graph::STACK_BRIDGE, motm_graph::REMOTE_BRIDGE] {
+        let p = processes
+            .iter()
+            .find(|p| p["name"] == bridge)
+            .unwrap_or_else(|| panic!("{bridge} missing from {report}"));
+        assert!(p["cycles"].as_u64().unwrap() > 0, "{bridge}: {report}");
+    }
+    assert!(stderr.contains("zenoh-stack: bridging"), "{stderr}");
+    assert!(stderr.contains("zenoh-remote: bridging"), "{stderr}");
 }
 
 #[test]

@@ -31,7 +31,7 @@ fn main() -> ExitCode {
             let mode = flags
                 .variant
                 .map_or(VariantMode::FollowMission, VariantMode::Fixed);
-            eprintln!(
+            motm_bus::say!(
                 "final-phase: {mode:?}, controller id {}",
                 flags.controller_id
             );

@@ -272,7 +272,9 @@ impl ToJson for msgs::DriverStatus {
     }
 }
 
-/// A jsonschema (draft 2020-12 subset: `type`, `properties`, `items`) describing `value`.
+/// A jsonschema (draft 2020-12 subset: `type`, `properties`, `required`, `items`) describing
+/// `value`. Every message of a channel has the same fields, so each object lists all of its
+/// properties as `required`.
 pub fn schema_of(value: &Value) -> Value {
     match value {
         Value::Null => json!({ "type": "null" }),
@@ -288,7 +290,8 @@ pub fn schema_of(value: &Value) -> Value {
                 .iter()
                 .map(|(k, v)| (k.clone(), schema_of(v)))
                 .collect();
-            json!({ "type": "object", "properties": properties })
+            let required: Vec<&String> = fields.keys().collect();
+            json!({ "type": "object", "properties": properties, "required": required })
         }
     }
 }
@@ -309,6 +312,31 @@ mod tests {
         assert_eq!(schema["type"], "object");
         assert_eq!(schema["properties"]["position"]["type"], "array");
         assert_eq!(schema["properties"]["position"]["items"]["type"], "number");
+        let required: Vec<&str> = schema["required"]
+            .as_array()
+            .expect("required is listed")
+            .iter()
+            .map(|k| k.as_str().unwrap())
+            .collect();
+        let keys: Vec<&str> = value
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
+        assert_eq!(required, keys);
+        assert!(required.contains(&"position"));
+    }
+
+    #[test]
+    fn nested_objects_list_their_own_required_fields() {
+        let schema = schema_of(&json!({ "a": 1, "rows": [{ "name": "x", "pid": 2 }] }));
+        assert_eq!(schema["required"], json!(["a", "rows"]));
+        assert_eq!(
+            schema["properties"]["rows"]["items"]["required"],
+            json!(["name", "pid"])
+        );
+        assert_eq!(schema_of(&json!({}))["required"], json!([]));
     }
 
     #[test]

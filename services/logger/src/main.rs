@@ -83,6 +83,11 @@ struct Cli {
     /// The run's base speed, m/s (with `--replay`; default: the scenario's).
     #[arg(long)]
     base_speed: Option<f64>,
+    /// At exit, write the taps' final counts to this file as one JSON object
+    /// (`samples_received`, `samples_lost`, `records_dropped`, `lost_by_service`, ...; the keys
+    /// of `/logger/stats`), for `motm run` to report the logger's losses.
+    #[arg(long, value_name = "FILE")]
+    final_stats: Option<PathBuf>,
 }
 
 /// One tapped service: its subscriber (once the service exists), what to do with a sample,
@@ -648,7 +653,16 @@ fn run(
     if writer_gone {
         return Err("the writer stopped".into());
     }
-    motm_bus::say!("{PROCESS}: {exit:?}; {done}; {dropped} records dropped");
+    let stats = tap_stats(&taps, recorder, dropped);
+    motm_bus::say!(
+        "{PROCESS}: {exit:?}; {done}; {} samples read, {} lost; {dropped} records dropped",
+        stats["samples_received"],
+        stats["samples_lost"]
+    );
+    if let Some(file) = &cli.final_stats {
+        std::fs::write(file, serde_json::Value::Object(stats).to_string())
+            .map_err(|e| format!("--final-stats {}: {e}", file.display()))?;
+    }
     Ok(())
 }
 

@@ -77,6 +77,11 @@ pub struct RunArgs {
     /// loopback over sim-world's physics, the drivers on their real backends).
     #[arg(long, value_enum, default_value_t = Hardware::Sim)]
     pub hardware: Hardware,
+    /// Run this process as if on another host (repeatable), e.g. `--remote perception`: on
+    /// its own iceoryx2 prefix (`<prefix>remote_`), its topics bridged to the stack by two
+    /// `motm-zenoh` peers over loopback TCP; the report lists `zenoh-stack` and `zenoh-remote`.
+    #[arg(long, value_name = "PROCESS")]
+    pub remote: Vec<String>,
 }
 
 /// What the drivers drive in `motm run`.
@@ -160,6 +165,8 @@ pub struct RunReport {
     pub faults_injected: Vec<FaultRecord>,
     /// The hot swaps requested with `--swap`, with their measured command gap.
     pub swaps: Vec<SwapReport>,
+    /// What the logger read and lost (`--mcap`, `--live`); null without a logger.
+    pub logger: Option<crate::run_mcap::LoggerLoss>,
 }
 
 /// Frame-to-command latencies of one run, from the QP status stream, µs.
@@ -353,20 +360,26 @@ pub fn registry_dir() -> PathBuf {
     std::env::temp_dir().join("motm-stacks")
 }
 
+/// The binary (and package) of the zenoh bridge.
+const BRIDGE_BINARY: &str = "motm-zenoh";
+
 /// Makes sure every binary is there, building it with `$CARGO` when run through Cargo.
-fn ensure_binaries(stack: &StackConfig) -> Result<PathBuf, CliError> {
+fn ensure_binaries(stack: &StackConfig, remote: bool) -> Result<PathBuf, CliError> {
     let dir = binaries::own_dir()
         .map_err(|e| CliError::Failed(format!("cannot find own executable: {e}")))?;
     let mut names = vec!["supervisor".to_string()];
     names.extend(stack.processes.iter().map(|p| p.name.clone()));
+    if remote {
+        names.push(BRIDGE_BINARY.into());
+    }
     let missing = binaries::missing(&dir, names.iter().map(String::as_str));
     if missing.is_empty() {
         return Ok(dir);
     }
-    let package_of = |name: &str| {
-        stack
-            .process(name)
-            .map_or_else(|| format!("motm-{name}"), |p| p.package())
+    let package_of = |name: &str| match stack.process(name) {
+        Some(p) => p.package(),
+        None if name == BRIDGE_BINARY => BRIDGE_BINARY.to_owned(),
+        None => format!("motm-{name}"),
     };
     let packages: Vec<String> = missing.iter().map(|n| package_of(n)).collect();
     if let Some(cargo) = std::env::var_os("CARGO") {
@@ -500,7 +513,15 @@ pub fn run_stack(
         live: args.live,
     };
     logger_outputs.check()?;
-    let bin_dir = ensure_binaries(&stack)?;
+    for name in &args.remote {
+        if stack.process(name).is_none() {
+            return Err(bad(format!(
+                "--remote {name}: not a process of the stack config {}",
+                stack_path.display()
+            )));
+        }
+    }
+    let bin_dir = ensure_binaries(&stack, !args.remote.is_empty())?;
 
     let ipc = IpcConfig {
         prefix: std::env::var(motm_bus::PREFIX_ENV)
@@ -516,13 +537,15 @@ pub fn run_stack(
         .map_err(|e| CliError::Failed(format!("cannot create {}: {e}", fake_reports.display())))?;
     let _ = std::fs::create_dir_all(registry_dir());
     let _ = std::fs::write(&registry, format!("{}\n", std::process::id()));
+    let iox2 = crate::status::write_iox2_config(&ipc).map_err(CliError::Failed)?;
     motm_bus::say!(
-        "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`)",
+        "motm run: {} at {} m/s, {} Hz control, iceoryx2 prefix {} (`MOTM_IPC_PREFIX={} motm status`; iceoryx2's tools: `cd {} && iox2 service list`)",
         scenario.name,
         scenario.base_speed,
         rate,
         ipc.prefix,
-        ipc.prefix
+        ipc.prefix,
+        iox2.display()
     );
 
     let wall = Instant::now();
@@ -544,6 +567,9 @@ pub fn run_stack(
         .arg(&bin_dir)
         .env(motm_bus::PREFIX_ENV, &ipc.prefix)
         .env(motm_graph::STAND_IN_REPORT_DIR_ENV, &fake_reports);
+    for name in &args.remote {
+        command.arg("--remote").arg(name);
+    }
     crate::run_mcap::exit_with_parent(&mut command);
     let with_logger = logger_outputs.any();
     let logger = if with_logger {
@@ -573,6 +599,10 @@ pub fn run_stack(
 
     let mut names: Vec<String> = stack.processes.iter().map(|p| p.name.clone()).collect();
     names.push("supervisor".into());
+    if !args.remote.is_empty() {
+        names.push(motm_graph::STACK_BRIDGE.into());
+        names.push(motm_graph::REMOTE_BRIDGE.into());
+    }
     if with_logger {
         names.push("logger".into());
     }
@@ -653,17 +683,21 @@ pub fn run_stack(
     let logger_exit = logger.map(|l| l.stop(grace));
     let supervisor_exit = stop_supervisor(&mut supervisor, grace);
     // Every process of the prefix has exited: clean what dead ones left, then the prefix itself.
-    let _ = motm_bus::cleanup_dead_nodes(&ipc);
-    // SAFETY: the supervisor and every process it started have exited; this run's bus is dropped.
-    let _ = unsafe { motm_bus::remove_domain(&ipc) };
+    for ipc in [&ipc, &ipc.remote()] {
+        let _ = motm_bus::cleanup_dead_nodes(ipc);
+        // SAFETY: the supervisor and every process it started have exited; this run's bus is
+        // dropped.
+        let _ = unsafe { motm_bus::remove_domain(ipc) };
+    }
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);
+    let _ = std::fs::remove_dir_all(&iox2);
     let fake_robot_violations = fake_robot_violations(&fake_reports);
     let _ = std::fs::remove_dir_all(&fake_reports);
     let fake_robot_violations = fake_robot_violations.map_err(CliError::Failed)?;
     let (trial, latencies, processes, drivers, faults_injected, safe_stops, swaps) =
         watched.map_err(|e| CliError::Failed(e.to_string()))?;
-    logger_exit.transpose()?;
+    let logger = logger_exit.transpose()?;
     if supervisor_exit.is_some_and(|s| !s.success()) {
         motm_bus::say!("motm run: supervisor exit: {}", supervisor_exit.unwrap());
     }
@@ -686,6 +720,7 @@ pub fn run_stack(
         safe_stops,
         faults_injected,
         swaps,
+        logger,
     };
     Ok((report, latencies))
 }
@@ -803,6 +838,15 @@ fn print_report(report: &RunReport, json: bool) -> Result<(), CliError> {
             s.new_pid,
             s.command_gap_ms,
             s.base_speed
+        );
+    }
+    if let Some(l) = &report.logger {
+        println!(
+            "logger: {} samples read, {} lost ({:.1} %; a full queue drops its oldest sample), {} records dropped",
+            l.samples_received,
+            l.samples_lost,
+            100.0 * l.lost_fraction,
+            l.records_dropped
         );
     }
     Ok(())

@@ -5,11 +5,12 @@
 
 use std::net::{SocketAddr, TcpListener};
 use std::os::unix::process::CommandExt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::Duration;
 
 use motm_supervisor::binaries;
+use serde::Serialize;
 
 use crate::CliError;
 
@@ -85,6 +86,47 @@ pub struct LoggedRun<'a> {
 /// The running logger.
 pub struct LoggerProcess {
     child: Child,
+    /// Where the logger writes its final counts (`logger --final-stats`).
+    stats_file: PathBuf,
+}
+
+/// What the logger read and lost in a run (its final counts).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LoggerLoss {
+    /// Samples the logger read from the stack's services.
+    pub samples_received: u64,
+    /// Samples it never read: overwritten in its full queues (the services overflow safely,
+    /// so a logger that falls behind loses its oldest samples instead of slowing a publisher).
+    pub samples_lost: u64,
+    /// `samples_lost / (samples_received + samples_lost)`.
+    pub lost_fraction: f64,
+    /// Records it read but dropped because its writer thread fell behind.
+    pub records_dropped: u64,
+}
+
+impl LoggerLoss {
+    /// Parses the logger's `--final-stats` JSON; the error names the file.
+    fn from_json(text: &str, file: &Path) -> Result<Self, String> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| format!("{}: {e}", file.display()))?;
+        let count = |key: &str| {
+            value[key]
+                .as_u64()
+                .ok_or_else(|| format!("{}: no {key}", file.display()))
+        };
+        let (samples_received, samples_lost) = (count("samples_received")?, count("samples_lost")?);
+        let total = samples_received + samples_lost;
+        Ok(Self {
+            samples_received,
+            samples_lost,
+            lost_fraction: if total == 0 {
+                0.0
+            } else {
+                samples_lost as f64 / total as f64
+            },
+            records_dropped: count("records_dropped")?,
+        })
+    }
 }
 
 impl LoggerProcess {
@@ -106,6 +148,9 @@ impl LoggerProcess {
             motm_bus::say!("motm run: {e}");
         }
         let mut command = Command::new(binaries::binary_path(bin_dir, LOGGER));
+        let stats_file = std::env::temp_dir().join(format!("motm-logger-stats-{prefix}.json"));
+        let _ = std::fs::remove_file(&stats_file);
+        command.arg("--final-stats").arg(&stats_file);
         if let Some(out) = outputs.mcap {
             command.arg("--out").arg(out).arg("--replay");
         }
@@ -130,16 +175,47 @@ impl LoggerProcess {
                 "cannot start the logger (`cargo build -p motm-logger`): {e}"
             ))
         })?;
-        Ok(Self { child })
+        Ok(Self { child, stats_file })
     }
 
-    /// Stops the logger (SIGTERM, SIGKILL after `grace`); an error when it did not finish the
-    /// file cleanly.
-    pub fn stop(mut self, grace: Duration) -> Result<(), CliError> {
-        match crate::run::stop_supervisor(&mut self.child, grace) {
-            Some(s) if s.success() => Ok(()),
-            Some(s) => Err(CliError::Failed(format!("logger exited with {s}"))),
-            None => Err(CliError::Failed("logger did not stop".into())),
+    /// Stops the logger (SIGTERM, SIGKILL after `grace`) and returns what it read and lost;
+    /// an error when it did not finish the file cleanly.
+    pub fn stop(mut self, grace: Duration) -> Result<LoggerLoss, CliError> {
+        let exit = crate::run::stop_supervisor(&mut self.child, grace);
+        let stats = std::fs::read_to_string(&self.stats_file);
+        let _ = std::fs::remove_file(&self.stats_file);
+        match exit {
+            Some(s) if s.success() => {}
+            Some(s) => return Err(CliError::Failed(format!("logger exited with {s}"))),
+            None => return Err(CliError::Failed("logger did not stop".into())),
         }
+        let text = stats.map_err(|e| {
+            CliError::Failed(format!("logger counts {}: {e}", self.stats_file.display()))
+        })?;
+        LoggerLoss::from_json(&text, &self.stats_file).map_err(CliError::Failed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_loggers_final_counts_give_its_lost_fraction_and_a_missing_key_names_the_file() {
+        let file = Path::new("/tmp/stats.json");
+        let loss = LoggerLoss::from_json(
+            r#"{"samples_received": 900, "samples_lost": 100, "records_dropped": 3, "lost_by_service": {}}"#,
+            file,
+        )
+        .unwrap();
+        assert_eq!(loss.samples_received, 900);
+        assert_eq!(loss.samples_lost, 100);
+        assert_eq!(loss.records_dropped, 3);
+        assert!((loss.lost_fraction - 0.1).abs() < 1e-12);
+        let err = LoggerLoss::from_json(r#"{"samples_received": 1}"#, file).unwrap_err();
+        assert!(
+            err.contains("/tmp/stats.json") && err.contains("samples_lost"),
+            "{err}"
+        );
     }
 }

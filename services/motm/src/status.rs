@@ -116,6 +116,27 @@ fn state_name(state: Option<SupervisedState>) -> &'static str {
     }
 }
 
+/// The folder of the iceoryx2 config that points iceoryx2's own `iox2` tools at `ipc`'s
+/// prefix: `iox2` 0.10 has no flag or environment variable for a config file and reads
+/// `./config/iceoryx2.toml` from its working directory first, so `cd` there and run
+/// `iox2 service list`, `iox2 node list` or `iox2 service hz SERVICE`.
+pub fn iox2_dir(ipc: &IpcConfig) -> PathBuf {
+    std::env::temp_dir().join("motm-iox2").join(&ipc.prefix)
+}
+
+/// Writes `<iox2_dir>/config/iceoryx2.toml`: the processes' iceoryx2 config (the file of
+/// `$MOTM_ICEORYX2_CONFIG`, or iceoryx2's own lookup) with `ipc`'s prefix. Returns the folder.
+pub fn write_iox2_config(ipc: &IpcConfig) -> Result<PathBuf, String> {
+    let config = ipc.iceoryx2().map_err(|e| e.to_string())?;
+    let text = toml::to_string(&config).map_err(|e| format!("iceoryx2 config: {e}"))?;
+    let dir = iox2_dir(ipc);
+    let file = dir.join("config").join("iceoryx2.toml");
+    std::fs::create_dir_all(dir.join("config"))
+        .and_then(|()| std::fs::write(&file, text))
+        .map_err(|e| format!("{}: {e}", file.display()))?;
+    Ok(dir)
+}
+
 /// `motm status`.
 pub fn run(args: &StatusArgs) -> Result<(), CliError> {
     let ipc = IpcConfig {
@@ -187,11 +208,20 @@ pub fn run(args: &StatusArgs) -> Result<(), CliError> {
             }
         })
         .collect();
+    let iox2 = write_iox2_config(&ipc).map_err(CliError::Failed)?;
     if args.json {
-        let out = serde_json::json!({ "ipc_prefix": ipc.prefix, "processes": rows });
+        let out = serde_json::json!({
+            "ipc_prefix": ipc.prefix,
+            "iox2_dir": iox2,
+            "processes": rows,
+        });
         println!("{out}");
     } else {
-        println!("stack on iceoryx2 prefix {}", ipc.prefix);
+        println!(
+            "stack on iceoryx2 prefix {} (iceoryx2's tools: cd {} && iox2 service list)",
+            ipc.prefix,
+            iox2.display()
+        );
         println!(
             "{:<14} {:>8} {:<10} {:>8} {:>8} {:>9} {:>7} {:>8} {:>10}",
             "process",
@@ -243,5 +273,32 @@ mod tests {
         assert_eq!(names[0], "sim-world");
         assert_eq!(names[1..=robot.len()], robot[..]);
         assert_eq!(names[robot.len() + 1..], ["fake-ld60", "supervisor"]);
+    }
+}
+
+#[cfg(test)]
+mod iox2_tests {
+    use super::*;
+
+    #[test]
+    fn the_iox2_config_is_the_processes_config_with_the_stacks_prefix() {
+        let ipc = IpcConfig {
+            prefix: format!("motmiox2t{}_", std::process::id()),
+        };
+        let dir = write_iox2_config(&ipc).unwrap();
+        let file = dir.join("config").join("iceoryx2.toml");
+        // Read back as iceoryx2 reads it (the prefix forced to another value first).
+        let other = IpcConfig {
+            prefix: "other_".into(),
+        };
+        let mut read = other.iceoryx2_from(Some(&file)).unwrap();
+        let text = std::fs::read_to_string(&file).unwrap();
+        assert!(
+            text.contains(&format!("prefix = \"{}\"", ipc.prefix)),
+            "{text}"
+        );
+        read.global.prefix = ipc.iceoryx2().unwrap().global.prefix;
+        assert_eq!(read, ipc.iceoryx2().unwrap());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -13,7 +13,7 @@ fn main() -> ExitCode {
     let (mut task, timing) = match args.build() {
         Ok(built) => built,
         Err(e) => {
-            eprintln!("sim-world: {e}");
+            motm_bus::say!("sim-world: {e}");
             return ExitCode::from(motm_wire::serve::EXIT_BAD_INPUT);
         }
     };

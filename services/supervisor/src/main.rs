@@ -57,6 +57,11 @@ struct Args {
     /// exit; deploy/install.sh writes the systemd units' argument files from it.
     #[arg(long)]
     print_launch: bool,
+    /// Run this process of the stack as if on another host (repeatable): on the iceoryx2 prefix
+    /// `<prefix>remote_`, bridged to the stack by two `motm-zenoh` peers over loopback TCP
+    /// (`zenoh-stack` and `zenoh-remote`, supervised like the others).
+    #[arg(long, value_name = "PROCESS")]
+    remote: Vec<String>,
 }
 
 /// Everything the supervisor needs, checked before anything starts.
@@ -85,7 +90,23 @@ fn setup(args: &Args) -> Result<Setup, String> {
         Some(dir) => dir.clone(),
         None => binaries::own_dir().map_err(|e| format!("cannot find own executable: {e}"))?,
     };
-    let missing = binaries::missing(&bin_dir, stack.processes.iter().map(|p| p.name.as_str()));
+    for name in &args.remote {
+        if stack.process(name).is_none() || motm_graph::task(name).is_none() {
+            return Err(format!(
+                "--remote {name}: not a process of the graph in {}",
+                stack.path.display()
+            ));
+        }
+    }
+    let bridge_binary = (!args.remote.is_empty()).then_some(BRIDGE_BINARY);
+    let missing = binaries::missing(
+        &bin_dir,
+        stack
+            .processes
+            .iter()
+            .map(|p| p.name.as_str())
+            .chain(bridge_binary),
+    );
     // Without spawning, the binaries may live elsewhere (or not be installed, like sim-world).
     if !missing.is_empty() && !args.no_spawn && !args.print_launch {
         return Err(format!(
@@ -108,16 +129,31 @@ fn setup(args: &Args) -> Result<Setup, String> {
         seed: args.seed.unwrap_or(stack.seed),
         control_rate_hz,
     };
-    let specs = stack
+    let remote_env = || {
+        vec![(
+            motm_bus::PREFIX_ENV.to_owned(),
+            IpcConfig::from_env().remote().prefix,
+        )]
+    };
+    let mut specs: Vec<LaunchSpec> = stack
         .processes
         .iter()
         .map(|p| LaunchSpec {
             name: p.name.clone(),
             program: binaries::binary_path(&bin_dir, &p.name),
             args: stack.expand_args(p, &context),
-            env: Vec::new(),
+            env: if args.remote.contains(&p.name) {
+                remote_env()
+            } else {
+                Vec::new()
+            },
         })
         .collect();
+    if !args.remote.is_empty() {
+        // The bridges start first, so that both ends of every bridged topic are up before the
+        // processes that use them, and stop last.
+        specs.splice(0..0, bridge_specs(&bin_dir, &args.remote, remote_env())?);
+    }
     let mission = if args.no_mission {
         None
     } else {
@@ -136,6 +172,50 @@ fn setup(args: &Args) -> Result<Setup, String> {
         control_rate_hz,
         mission,
     })
+}
+
+/// The binary of the zenoh bridge (package `motm-zenoh`).
+const BRIDGE_BINARY: &str = "motm-zenoh";
+
+/// The two bridges of `--remote`: the stack's end listening on a free loopback port, the
+/// remote end (with environment `remote_env`) connecting to it.
+fn bridge_specs(
+    bin_dir: &std::path::Path,
+    remote: &[String],
+    remote_env: Vec<(String, String)>,
+) -> Result<Vec<LaunchSpec>, String> {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map_err(|e| format!("--remote: no free loopback port for the bridge: {e}"))?
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let args = |side: &str, endpoint_flag: &str| {
+        let mut args: Vec<String> = remote
+            .iter()
+            .flat_map(|r| ["--remote-task".to_owned(), r.clone()])
+            .collect();
+        args.extend([
+            "--side".to_owned(),
+            side.to_owned(),
+            endpoint_flag.to_owned(),
+            endpoint.clone(),
+        ]);
+        args
+    };
+    Ok(vec![
+        LaunchSpec {
+            name: motm_graph::STACK_BRIDGE.to_owned(),
+            program: binaries::binary_path(bin_dir, BRIDGE_BINARY),
+            args: args("stack", "--listen"),
+            env: Vec::new(),
+        },
+        LaunchSpec {
+            name: motm_graph::REMOTE_BRIDGE.to_owned(),
+            program: binaries::binary_path(bin_dir, BRIDGE_BINARY),
+            args: args("remote", "--connect"),
+            env: remote_env,
+        },
+    ])
 }
 
 /// Logs table events on stderr.

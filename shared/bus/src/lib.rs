@@ -174,6 +174,15 @@ impl IpcConfig {
         Ok(config)
     }
 
+    /// The prefix that stands for another host beside this one (`<prefix>remote_`): the
+    /// processes that `motm run --remote` runs as if on another host, behind a zenoh bridge.
+    /// Its files start with this prefix, so a check for leftovers of this prefix covers it.
+    pub fn remote(&self) -> Self {
+        Self {
+            prefix: format!("{}remote_", self.prefix),
+        }
+    }
+
     /// Whether the publish-subscribe service `name` exists under this prefix.
     pub fn service_exists(&self, name: &str) -> Result<bool, BusError> {
         use iceoryx2::service::Service;

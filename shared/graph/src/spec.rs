@@ -422,6 +422,13 @@ pub const SUPERVISOR_TOPICS: &[TopicSpec] = &[
     t::SUPERVISOR_STATUS.spec(),
 ];
 
+/// The zenoh bridge on the stack's host when some of the graph's processes run on another
+/// host (`motm run --remote`, the `motm-zenoh` binary).
+pub const STACK_BRIDGE: &str = "zenoh-stack";
+
+/// The zenoh bridge on the host of the remote processes (`motm run --remote`).
+pub const REMOTE_BRIDGE: &str = "zenoh-remote";
+
 /// The row of task `name`.
 pub fn task(name: &str) -> Option<&'static TaskSpec> {
     GRAPH.iter().find(|t| t.name == name)

@@ -130,6 +130,14 @@ pub unsafe trait Message: ZeroCopySend + Copy + core::fmt::Debug + 'static {
         None
     }
 
+    /// Calls `f` on every field that holds an instant of the publisher's `CLOCK_MONOTONIC`: the
+    /// header's stamp and, for some payloads, the stamps of the image behind them, of their
+    /// publication or of the last deadline miss (a field may be 0: unknown). A bridge to another
+    /// host moves them all to that host's clock.
+    fn for_each_instant(&mut self, f: &mut dyn FnMut(&mut u64)) {
+        f(&mut self.header_mut().stamp_ns);
+    }
+
     /// A value with every field zero and a current-version header.
     fn zeroed() -> Self {
         // SAFETY: the trait contract guarantees that all-zero bytes are a valid value.

@@ -78,6 +78,26 @@ macro_rules! code_enum {
 /// Implements [`Message`] for a payload with a `header` field; `$check` and `$msg` name the
 /// field checker and the message inside the validation body.
 macro_rules! message {
+    ($ty:ident, instants = [$($instant:ident),+], published = $field:ident, |$msg:ident, $check:ident| $body:block) => {
+        message!(@impl $ty, |$msg, $check| $body, {
+            fn publication_stamp_mut(&mut self) -> Option<&mut u64> {
+                Some(&mut self.$field)
+            }
+
+            fn for_each_instant(&mut self, f: &mut dyn FnMut(&mut u64)) {
+                f(&mut self.header.stamp_ns);
+                $(f(&mut self.$instant);)+
+            }
+        });
+    };
+    ($ty:ident, instants = [$($instant:ident),+], |$msg:ident, $check:ident| $body:block) => {
+        message!(@impl $ty, |$msg, $check| $body, {
+            fn for_each_instant(&mut self, f: &mut dyn FnMut(&mut u64)) {
+                f(&mut self.header.stamp_ns);
+                $(f(&mut self.$instant);)+
+            }
+        });
+    };
     ($ty:ident, published = $field:ident, |$msg:ident, $check:ident| $body:block) => {
         message!(@impl $ty, |$msg, $check| $body, {
             fn publication_stamp_mut(&mut self) -> Option<&mut u64> {
@@ -391,25 +411,29 @@ pub struct TargetEstimate {
     pub task_index: u32,
 }
 
-message!(TargetEstimate, |m, c| {
-    if m.image_stamp_ns > m.header.stamp_ns {
-        return Err(c.reject(
-            "image_stamp_ns",
-            None,
-            RejectReason::Inconsistent("image stamp after the estimate's own stamp"),
-        ));
+message!(
+    TargetEstimate,
+    instants = [image_stamp_ns, image_published_ns],
+    |m, c| {
+        if m.image_stamp_ns > m.header.stamp_ns {
+            return Err(c.reject(
+                "image_stamp_ns",
+                None,
+                RejectReason::Inconsistent("image stamp after the estimate's own stamp"),
+            ));
+        }
+        image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
+        c.all_within("position", &m.position, envelope::WORLD_POSITION)?;
+        c.all_within("velocity", &m.velocity, envelope::OBJECT_SPEED)?;
+        flag(c, "visible", m.visible)?;
+        c.in_range(
+            "task_index",
+            f64::from(m.task_index),
+            0.0,
+            f64::from(u16::MAX),
+        )
     }
-    image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
-    c.all_within("position", &m.position, envelope::WORLD_POSITION)?;
-    c.all_within("velocity", &m.velocity, envelope::OBJECT_SPEED)?;
-    flag(c, "visible", m.visible)?;
-    c.in_range(
-        "task_index",
-        f64::from(m.task_index),
-        0.0,
-        f64::from(u16::MAX),
-    )
-});
+);
 
 /// Base planner output: where the base passes closest to the target and when the target
 /// enters manipulation range.
@@ -494,28 +518,33 @@ impl core::fmt::Debug for CameraImage {
     }
 }
 
-message!(CameraImage, published = image_published_ns, |m, c| {
-    c.in_range(
-        "width",
-        f64::from(m.width),
-        CAMERA_WIDTH as f64,
-        CAMERA_WIDTH as f64,
-    )?;
-    c.in_range(
-        "height",
-        f64::from(m.height),
-        CAMERA_HEIGHT as f64,
-        CAMERA_HEIGHT as f64,
-    )?;
-    if m.image_published_ns < m.header.stamp_ns {
-        return Err(c.reject(
-            "image_published_ns",
-            None,
-            RejectReason::Inconsistent("frame published before its exposure"),
-        ));
+message!(
+    CameraImage,
+    instants = [image_published_ns],
+    published = image_published_ns,
+    |m, c| {
+        c.in_range(
+            "width",
+            f64::from(m.width),
+            CAMERA_WIDTH as f64,
+            CAMERA_WIDTH as f64,
+        )?;
+        c.in_range(
+            "height",
+            f64::from(m.height),
+            CAMERA_HEIGHT as f64,
+            CAMERA_HEIGHT as f64,
+        )?;
+        if m.image_published_ns < m.header.stamp_ns {
+            return Err(c.reject(
+                "image_published_ns",
+                None,
+                RejectReason::Inconsistent("frame published before its exposure"),
+            ));
+        }
+        Ok(())
     }
-    Ok(())
-});
+);
 
 /// Checks an image publication time carried downstream: 0 (unknown), or at or after the
 /// image's exposure `image_stamp_ns` and at or before the carrying message's own `stamp_ns`.
@@ -610,7 +639,7 @@ impl Heartbeat {
     }
 }
 
-message!(Heartbeat, |m, c| {
+message!(Heartbeat, instants = [last_deadline_miss_ns], |m, c| {
     c.code::<ProcessState>("state", m.state)?;
     if m.deadline_misses > m.cycles {
         return Err(c.reject(
@@ -802,35 +831,40 @@ pub struct QpStatus {
     pub published_ns: u64,
 }
 
-message!(QpStatus, published = published_ns, |m, c| {
-    c.code::<QpOutcome>("outcome", m.outcome)?;
-    c.in_range("objective", m.objective, f64::MIN, f64::MAX)?;
-    c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)?;
-    if m.image_stamp_ns > m.header.stamp_ns {
-        return Err(c.reject(
-            "image_stamp_ns",
-            None,
-            RejectReason::Inconsistent("image stamp after the status's own stamp"),
-        ));
+message!(
+    QpStatus,
+    instants = [image_stamp_ns, image_published_ns, published_ns],
+    published = published_ns,
+    |m, c| {
+        c.code::<QpOutcome>("outcome", m.outcome)?;
+        c.in_range("objective", m.objective, f64::MIN, f64::MAX)?;
+        c.in_range("slack_norm", m.slack_norm, 0.0, f64::MAX)?;
+        if m.image_stamp_ns > m.header.stamp_ns {
+            return Err(c.reject(
+                "image_stamp_ns",
+                None,
+                RejectReason::Inconsistent("image stamp after the status's own stamp"),
+            ));
+        }
+        image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
+        if m.published_ns != 0 && m.published_ns < m.header.stamp_ns {
+            return Err(c.reject(
+                "published_ns",
+                None,
+                RejectReason::Inconsistent("sent before its own stamp"),
+            ));
+        }
+        for i in 0..6 {
+            let max = if i < 3 {
+                envelope::EE_SPEED
+            } else {
+                envelope::ANGULAR_SPEED
+            };
+            c.in_range_at("twist", Some(i), m.twist[i], -max, max)?;
+        }
+        Ok(())
     }
-    image_published(c, m.image_stamp_ns, m.image_published_ns, m.header.stamp_ns)?;
-    if m.published_ns != 0 && m.published_ns < m.header.stamp_ns {
-        return Err(c.reject(
-            "published_ns",
-            None,
-            RejectReason::Inconsistent("sent before its own stamp"),
-        ));
-    }
-    for i in 0..6 {
-        let max = if i < 3 {
-            envelope::EE_SPEED
-        } else {
-            envelope::ANGULAR_SPEED
-        };
-        c.in_range_at("twist", Some(i), m.twist[i], -max, max)?;
-    }
-    Ok(())
-});
+);
 
 code_enum!(
     /// Which controller variant is active.
