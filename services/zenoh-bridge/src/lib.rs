@@ -100,6 +100,15 @@ pub struct Exporter {
     stats: Arc<Stats>,
 }
 
+/// The payload kind and service settings of each graph topic in `names` (an error names an
+/// unknown one).
+fn graph_topics(names: &[String]) -> Result<Vec<(&str, &'static dyn Kind, Qos)>, String> {
+    names
+        .iter()
+        .map(|t| Ok((t.as_str(), kind(t)?, lanes::qos_of(t))))
+        .collect()
+}
+
 impl Exporter {
     /// Subscribes to every topic of `config.export` on `bus` and declares its zenoh publisher.
     pub fn open(
@@ -108,12 +117,7 @@ impl Exporter {
         config: &BridgeConfig,
         stats: Arc<Stats>,
     ) -> Result<Self, String> {
-        let topics: Vec<(&str, &'static dyn Kind, Qos)> = config
-            .export
-            .iter()
-            .map(|t| Ok((t.as_str(), kind(t)?, lanes::qos_of(t))))
-            .collect::<Result<_, String>>()?;
-        Self::with_kinds(bus, session, config, &topics, stats)
+        Self::with_kinds(bus, session, config, &graph_topics(&config.export)?, stats)
     }
 
     /// As [`Exporter::open`], for topics of the given kinds and service settings (a
@@ -203,12 +207,7 @@ impl Importer {
         config: &BridgeConfig,
         stats: Arc<Stats>,
     ) -> Result<Self, String> {
-        let topics: Vec<(&str, &'static dyn Kind, Qos)> = config
-            .import
-            .iter()
-            .map(|t| Ok((t.as_str(), kind(t)?, lanes::qos_of(t))))
-            .collect::<Result<_, String>>()?;
-        Self::with_kinds(bus, session, config, &topics, stats)
+        Self::with_kinds(bus, session, config, &graph_topics(&config.import)?, stats)
     }
 
     /// As [`Importer::open`], for topics of the given kinds and service settings (a
