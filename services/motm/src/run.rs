@@ -682,12 +682,24 @@ pub fn run_stack(
     let grace = Duration::from_secs_f64(stack.shutdown_grace_ms / 1000.0 + 5.0);
     let logger_exit = logger.map(|l| l.stop(grace));
     let supervisor_exit = stop_supervisor(&mut supervisor, grace);
-    // Every process of the prefix has exited: clean what dead ones left, then the prefix itself.
+    // Every process of the stack has exited: clean what dead ones left, then the prefix itself,
+    // unless a process from outside the stack (an attached `iox2 service hz`, say) is still on
+    // it: its resources then stay and are counted as left behind.
     for ipc in [&ipc, &ipc.remote()] {
         let _ = motm_bus::cleanup_dead_nodes(ipc);
-        // SAFETY: the supervisor and every process it started have exited; this run's bus is
-        // dropped.
-        let _ = unsafe { motm_bus::remove_domain(ipc) };
+        match motm_bus::live_nodes(ipc) {
+            Ok(live) if live.is_empty() => {
+                // SAFETY: the supervisor and every process it started have exited, this run's
+                // bus is dropped, and no other node is alive on the prefix.
+                let _ = unsafe { motm_bus::remove_domain(ipc) };
+            }
+            Ok(live) => motm_bus::say!(
+                "motm run: still on iceoryx2 prefix {} at the end of the run: {} (stop iceoryx2 tools such as `iox2 service hz` before the run ends)",
+                ipc.prefix,
+                live.join(", ")
+            ),
+            Err(e) => motm_bus::say!("motm run: {e}"),
+        }
     }
     let stale = motm_bus::shared_memory_entries(&ipc).map_or(0, |e| e.len());
     let _ = std::fs::remove_file(&registry);

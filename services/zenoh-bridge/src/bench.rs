@@ -12,6 +12,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Sender, channel};
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 use clap::Args;
@@ -23,8 +24,8 @@ use motm_bus::{
 use motm_msgs::{CAMERA_HEIGHT, CAMERA_WIDTH, CameraImage, Header, Message, Rejection};
 use serde_json::{Value, json};
 
-use crate::lanes::{Kind, Typed};
-use crate::{BridgeConfig, Exporter, Importer, Stats};
+use crate::lanes::Typed;
+use crate::{BridgeConfig, Exporter, Importer, Link, Stats, Topic};
 
 /// Arguments of `motm-zenoh bench`.
 #[derive(Debug, Clone, Args)]
@@ -104,7 +105,7 @@ static PING_KIND: Typed<Ping> = Typed::new();
 static IMAGE_KIND: Typed<CameraImage> = Typed::new();
 
 /// The two payloads with their service settings.
-fn topics() -> [(&'static str, &'static dyn Kind, Qos); 2] {
+fn topics() -> [Topic<'static>; 2] {
     [
         (PING, &PING_KIND, Qos::default().waking()),
         (IMAGE, &IMAGE_KIND, Qos::large().waking()),
@@ -223,74 +224,33 @@ fn measure(
     let mut image = Publisher::<CameraImage>::new(&bus, IMAGE, &topics()[1].2).map_err(e)?;
     let (hop_send, hops) = channel::<(usize, bool, u64)>();
     let (ready_send, ready) = channel::<Result<(), String>>();
-    let mut threads = Vec::new();
-    {
-        let (ipc, config, stats, stop, ready) = (
-            there.clone(),
-            into.clone(),
-            stats.clone(),
-            stop.clone(),
-            ready_send.clone(),
-        );
-        threads.push(std::thread::spawn(move || {
-            let opened = crate::open_session(&config).and_then(|session| {
-                let bus = Bus::open_with(&config.name, &ipc).map_err(|e| e.to_string())?;
-                let importer = Importer::with_kinds(&bus, &session, &config, &topics(), stats)?;
-                Ok((session, bus, importer))
-            });
-            let (_session, _bus, mut importer) = match opened {
-                Ok(o) => {
-                    let _ = ready.send(Ok(()));
-                    o
+    let mut threads = vec![
+        spawn_half(there, into, &stats, &ready_send, Importer::with_kinds, {
+            let stop = stop.clone();
+            move |_, mut importer| {
+                while !stop.load(Ordering::Relaxed) {
+                    importer.poll(Duration::from_millis(20));
                 }
-                Err(e) => {
-                    let _ = ready.send(Err(e));
-                    return;
-                }
-            };
-            while !stop.load(Ordering::Relaxed) {
-                importer.poll(Duration::from_millis(20));
             }
-        }));
-    }
-    {
-        let (ipc, config, stats, stop, ready) = (
-            here.clone(),
-            out.clone(),
-            stats.clone(),
-            stop.clone(),
-            ready_send.clone(),
-        );
-        threads.push(std::thread::spawn(move || {
-            let opened = crate::open_session(&config).and_then(|session| {
-                let bus = Bus::open_with(&config.name, &ipc).map_err(|e| e.to_string())?;
-                let exporter = Exporter::with_kinds(&bus, &session, &config, &topics(), stats)?;
-                Ok((session, bus, exporter))
-            });
-            let (_session, bus, mut exporter) = match opened {
-                Ok(o) => {
-                    let _ = ready.send(Ok(()));
-                    o
-                }
-                Err(e) => {
-                    let _ = ready.send(Err(e));
+        }),
+        spawn_half(here, out, &stats, &ready_send, Exporter::with_kinds, {
+            let stop = stop.clone();
+            move |bus, mut exporter| {
+                let triggers = exporter.triggers();
+                let Ok(mut service) = ServiceLoop::new(bus, LoopConfig::with_rate(1000.0)) else {
                     return;
-                }
-            };
-            let triggers = exporter.triggers();
-            let Ok(mut service) = ServiceLoop::new(&bus, LoopConfig::with_rate(1000.0)) else {
-                return;
-            };
-            let _ = service.run_on_arrival(&triggers, |_| {
-                exporter.pump();
-                if stop.load(Ordering::Relaxed) {
-                    Flow::Stop
-                } else {
-                    Flow::Continue
-                }
-            });
-        }));
-    }
+                };
+                let _ = service.run_on_arrival(&triggers, |_| {
+                    exporter.pump();
+                    if stop.load(Ordering::Relaxed) {
+                        Flow::Stop
+                    } else {
+                        Flow::Continue
+                    }
+                });
+            }
+        }),
+    ];
     {
         let (here, there, stop, ready) = (
             here.clone(),
@@ -375,6 +335,42 @@ fn measure(
     }
     let (a, b) = result?;
     Ok((a, b, stats))
+}
+
+/// Starts a thread that opens the zenoh session of `config`, a node on `ipc` and one half of
+/// the bridge (`open`, for the benchmark's payloads), says on `ready` whether that worked, and
+/// then runs `work` with the node and the half.
+fn spawn_half<H: 'static>(
+    ipc: &IpcConfig,
+    config: &BridgeConfig,
+    stats: &Arc<Stats>,
+    ready: &Sender<Result<(), String>>,
+    open: fn(Link<'_>, &[Topic<'_>]) -> Result<H, String>,
+    work: impl FnOnce(&Bus, H) + Send + 'static,
+) -> JoinHandle<()> {
+    let (ipc, config, stats, ready) = (ipc.clone(), config.clone(), stats.clone(), ready.clone());
+    std::thread::spawn(move || {
+        let opened = crate::open_session(&config).and_then(|session| {
+            let bus = Bus::open_with(&config.name, &ipc).map_err(|e| e.to_string())?;
+            let link = Link {
+                bus: &bus,
+                session: &session,
+                config: &config,
+                stats,
+            };
+            let half = open(link, &topics())?;
+            Ok((session, bus, half))
+        });
+        match opened {
+            Ok((_session, bus, half)) => {
+                let _ = ready.send(Ok(()));
+                work(&bus, half);
+            }
+            Err(e) => {
+                let _ = ready.send(Err(e));
+            }
+        }
+    })
 }
 
 /// The receiver: subscribed to both payloads on both prefixes, woken by their data events;

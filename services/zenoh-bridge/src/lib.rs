@@ -100,9 +100,24 @@ pub struct Exporter {
     stats: Arc<Stats>,
 }
 
+/// A topic to bridge: its service name, payload kind and service settings.
+pub type Topic<'a> = (&'a str, &'static dyn Kind, Qos);
+
+/// What each half of a bridge opens on.
+pub struct Link<'a> {
+    /// The local stack.
+    pub bus: &'a Bus,
+    /// The zenoh session.
+    pub session: &'a zenoh::Session,
+    /// The bridge's config: its name and key namespace.
+    pub config: &'a BridgeConfig,
+    /// The counts both halves share.
+    pub stats: Arc<Stats>,
+}
+
 /// The payload kind and service settings of each graph topic in `names` (an error names an
 /// unknown one).
-fn graph_topics(names: &[String]) -> Result<Vec<(&str, &'static dyn Kind, Qos)>, String> {
+fn graph_topics(names: &[String]) -> Result<Vec<Topic<'_>>, String> {
     names
         .iter()
         .map(|t| Ok((t.as_str(), kind(t)?, lanes::qos_of(t))))
@@ -110,30 +125,24 @@ fn graph_topics(names: &[String]) -> Result<Vec<(&str, &'static dyn Kind, Qos)>,
 }
 
 impl Exporter {
-    /// Subscribes to every topic of `config.export` on `bus` and declares its zenoh publisher.
-    pub fn open(
-        bus: &Bus,
-        session: &zenoh::Session,
-        config: &BridgeConfig,
-        stats: Arc<Stats>,
-    ) -> Result<Self, String> {
-        Self::with_kinds(bus, session, config, &graph_topics(&config.export)?, stats)
+    /// Subscribes to every topic of the config's `export` on the link's stack and declares its
+    /// zenoh publisher.
+    pub fn open(link: Link<'_>) -> Result<Self, String> {
+        let config = link.config;
+        Self::with_kinds(link, &graph_topics(&config.export)?)
     }
 
     /// As [`Exporter::open`], for topics of the given kinds and service settings (a
     /// benchmark's own payloads).
-    pub fn with_kinds(
-        bus: &Bus,
-        session: &zenoh::Session,
-        config: &BridgeConfig,
-        topics: &[(&str, &'static dyn Kind, Qos)],
-        stats: Arc<Stats>,
-    ) -> Result<Self, String> {
+    pub fn with_kinds(link: Link<'_>, topics: &[Topic<'_>]) -> Result<Self, String> {
         let mut lanes = Vec::new();
         for (topic, kind, qos) in topics {
-            let lane = kind.exporter(bus, topic, qos).map_err(|e| e.to_string())?;
-            let key = config.key_of(topic);
-            let publisher = session
+            let lane = kind
+                .exporter(link.bus, topic, qos)
+                .map_err(|e| e.to_string())?;
+            let key = link.config.key_of(topic);
+            let publisher = link
+                .session
                 .declare_publisher(key.clone())
                 .wait()
                 .map_err(|e| format!("zenoh publisher {key}: {e}"))?;
@@ -143,7 +152,7 @@ impl Exporter {
             lanes,
             sender: sender_id(),
             buffer: Vec::new(),
-            stats,
+            stats: link.stats,
         })
     }
 
@@ -199,35 +208,28 @@ pub struct Importer {
 }
 
 impl Importer {
-    /// Declares a zenoh subscriber for every topic of `config.import` and opens its publisher
-    /// on `bus`.
-    pub fn open(
-        bus: &Bus,
-        session: &zenoh::Session,
-        config: &BridgeConfig,
-        stats: Arc<Stats>,
-    ) -> Result<Self, String> {
-        Self::with_kinds(bus, session, config, &graph_topics(&config.import)?, stats)
+    /// Declares a zenoh subscriber for every topic of the config's `import` and opens its
+    /// publisher on the link's stack.
+    pub fn open(link: Link<'_>) -> Result<Self, String> {
+        let config = link.config;
+        Self::with_kinds(link, &graph_topics(&config.import)?)
     }
 
     /// As [`Importer::open`], for topics of the given kinds and service settings (a
     /// benchmark's own payloads).
-    pub fn with_kinds(
-        bus: &Bus,
-        session: &zenoh::Session,
-        config: &BridgeConfig,
-        topics: &[(&str, &'static dyn Kind, Qos)],
-        stats: Arc<Stats>,
-    ) -> Result<Self, String> {
+    pub fn with_kinds(link: Link<'_>, topics: &[Topic<'_>]) -> Result<Self, String> {
         let (send, received): (Sender<(usize, Vec<u8>)>, _) = channel();
         let mut lanes = Vec::new();
         let mut subscribers = Vec::new();
         for (i, (topic, kind, qos)) in topics.iter().enumerate() {
-            let lane = kind.importer(bus, topic, qos).map_err(|e| e.to_string())?;
+            let lane = kind
+                .importer(link.bus, topic, qos)
+                .map_err(|e| e.to_string())?;
             lanes.push((topic.to_string(), kind.id(), lane));
-            let key = config.key_of(topic);
+            let key = link.config.key_of(topic);
             let send = send.clone();
-            let subscriber = session
+            let subscriber = link
+                .session
                 .declare_subscriber(key.clone())
                 .callback(move |sample| {
                     let _ = send.send((i, sample.payload().to_bytes().into_owned()));
@@ -242,8 +244,8 @@ impl Importer {
             received,
             _subscribers: subscribers,
             clock_offsets: HashMap::new(),
-            name: config.name.clone(),
-            stats,
+            name: link.config.name.clone(),
+            stats: link.stats,
         })
     }
 
@@ -335,7 +337,13 @@ pub fn run(config: &BridgeConfig, ipc: &IpcConfig) -> Result<Arc<Stats>, String>
                 let opened = Bus::open_with(&format!("{}-import", config.name), &ipc)
                     .map_err(|e| e.to_string())
                     .and_then(|bus| {
-                        Importer::open(&bus, &session, &config, stats).map(|imp| (bus, imp))
+                        Importer::open(Link {
+                            bus: &bus,
+                            session: &session,
+                            config: &config,
+                            stats,
+                        })
+                        .map(|imp| (bus, imp))
                     });
                 let (bus, mut importer) = match opened {
                     Ok(opened) => {
@@ -362,7 +370,12 @@ pub fn run(config: &BridgeConfig, ipc: &IpcConfig) -> Result<Arc<Stats>, String>
         .recv()
         .map_err(|_| "the import thread ended".to_owned())??;
     let bus = Bus::open_with(&config.name, ipc).map_err(|e| e.to_string())?;
-    let mut exporter = Exporter::open(&bus, &session, config, stats.clone())?;
+    let mut exporter = Exporter::open(Link {
+        bus: &bus,
+        session: &session,
+        config,
+        stats: stats.clone(),
+    })?;
     motm_bus::say!(
         "{}: bridging {} topics out and {} in over zenoh (listen {:?}, connect {:?})",
         config.name,

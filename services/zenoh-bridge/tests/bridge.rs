@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use motm_bus::{Bus, IpcConfig, Publisher, Stamp, Subscriber, remove_domain};
 use motm_msgs::{Message, SCHEMA_VERSION, TargetEstimate, topics};
 use motm_zenoh::envelope::{self, PayloadId};
-use motm_zenoh::{BridgeConfig, Exporter, Importer, Stats, lanes, open_session};
+use motm_zenoh::{BridgeConfig, Exporter, Importer, Link, Stats, lanes, open_session};
 use zenoh::Wait;
 
 /// A free loopback TCP port.
@@ -88,9 +88,20 @@ fn a_sample_crosses_two_prefixes_and_a_mismatched_schema_is_refused_and_counted(
         let mut publisher =
             Publisher::<TargetEstimate>::new(&near, topics::PERCEPTION_TARGET.name(), &qos)
                 .unwrap();
-        let mut exporter =
-            Exporter::open(&near, &out_session, &out_config, out_stats.clone()).unwrap();
-        let mut importer = Importer::open(&far, &in_session, &in_config, in_stats.clone()).unwrap();
+        let mut exporter = Exporter::open(Link {
+            bus: &near,
+            session: &out_session,
+            config: &out_config,
+            stats: out_stats.clone(),
+        })
+        .unwrap();
+        let mut importer = Importer::open(Link {
+            bus: &far,
+            session: &in_session,
+            config: &in_config,
+            stats: in_stats.clone(),
+        })
+        .unwrap();
         let mut reader =
             Subscriber::<TargetEstimate>::new(&far, topics::PERCEPTION_TARGET.name(), &qos)
                 .unwrap();
@@ -204,7 +215,13 @@ fn an_invalid_sample_of_the_right_type_is_counted_and_not_published() {
         let out_session = open_session(&out_config).unwrap();
         let far = Bus::open_with("test-far", &there).unwrap();
         let qos = lanes::qos_of(topics::PERCEPTION_TARGET.name());
-        let mut importer = Importer::open(&far, &in_session, &in_config, stats.clone()).unwrap();
+        let mut importer = Importer::open(Link {
+            bus: &far,
+            session: &in_session,
+            config: &in_config,
+            stats: stats.clone(),
+        })
+        .unwrap();
         let mut reader =
             Subscriber::<TargetEstimate>::new(&far, topics::PERCEPTION_TARGET.name(), &qos)
                 .unwrap();

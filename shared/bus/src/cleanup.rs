@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use iceoryx2::node::NodeCleanupFailure;
+use iceoryx2::node::{NodeCleanupFailure, NodeView};
 use iceoryx2::prelude::*;
 
 use crate::{BusError, IpcConfig};
@@ -21,22 +21,51 @@ pub struct CleanupReport {
 /// `waitpid` reaped a dead child and before restarting it: a zombie still holds its node's
 /// liveness lock, so reap first.
 pub fn cleanup_dead_nodes(ipc: &IpcConfig) -> Result<CleanupReport, BusError> {
-    let config = ipc.iceoryx2()?;
     let mut report = CleanupReport::default();
-    Node::<ipc::Service>::list(&config, |state| {
+    for_each_node(ipc, |state| {
         if let NodeState::Dead(view) = state {
             match view.try_remove_stale_resources() {
                 Ok(()) | Err(NodeCleanupFailure::ResourcesAlreadyCleanedUp) => report.cleaned += 1,
                 Err(_) => report.failed += 1,
             }
         }
+    })?;
+    Ok(report)
+}
+
+/// Calls `each` with the state of every node under `ipc`.
+fn for_each_node(
+    ipc: &IpcConfig,
+    mut each: impl FnMut(NodeState<ipc::Service>),
+) -> Result<(), BusError> {
+    let config = ipc.iceoryx2()?;
+    Node::<ipc::Service>::list(&config, |state| {
+        each(state);
         CallbackProgression::Continue
     })
     .map_err(|e| BusError::Node {
         process: "(cleanup)".to_owned(),
         detail: format!("cannot list nodes: {e:?}"),
+    })
+}
+
+/// The live nodes under `ipc`, each as `name (pid N)`: a prefix with any is still in use (an
+/// attached tool such as iceoryx2's `iox2 service hz` is one).
+pub fn live_nodes(ipc: &IpcConfig) -> Result<Vec<String>, BusError> {
+    let mut live = Vec::new();
+    for_each_node(ipc, |state| {
+        if let NodeState::Alive(view) = state {
+            let name = view
+                .details()
+                .as_ref()
+                .map_or_else(|| "(unnamed)".to_owned(), |d| d.name().to_string());
+            match view.id().pid::<ipc::Service>() {
+                Ok(pid) => live.push(format!("{name} (pid {})", pid.value())),
+                Err(_) => live.push(name),
+            }
+        }
     })?;
-    Ok(report)
+    Ok(live)
 }
 
 /// Every file whose name starts with `prefix` in `/dev/shm` and (recursively) in iceoryx2's

@@ -44,7 +44,9 @@ mod systemd;
 pub mod termination;
 mod tick;
 
-pub use cleanup::{CleanupReport, cleanup_dead_nodes, remove_domain, shared_memory_entries};
+pub use cleanup::{
+    CleanupReport, cleanup_dead_nodes, live_nodes, remove_domain, shared_memory_entries,
+};
 pub use clock::monotonic_now_ns;
 pub use heartbeat::HeartbeatPublisher;
 pub use ports::{Latest, Publisher, Qos, Received, Stamp, Subscriber, Trigger};
