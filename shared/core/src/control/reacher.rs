@@ -89,6 +89,12 @@ pub struct ReacherConfig {
     /// the multiple of `yaw_symmetry` closest to the gripper's current yaw, whatever the base's
     /// heading as it passes the object.
     pub object_yaw: f64,
+    /// Fraction of the tool twist's linear acceleration limit (the QP resolver's twist rate
+    /// limit at the run's base speed) that a reach trajectory may use at its peak (0.9). A
+    /// quintic that would need more is given a longer duration than max(t_R, t_A), so that the
+    /// rate limit never cuts into the plan: a cut plan arrives late and fast, and the hand-over
+    /// to the final phase then jerks the tool. Outside (0, 1] nothing is stretched.
+    pub acceleration_fraction: f64,
 }
 
 impl Default for ReacherConfig {
@@ -103,6 +109,7 @@ impl Default for ReacherConfig {
             side_change_margin: 0.2,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
             object_yaw: 0.0,
+            acceleration_fraction: 0.9,
         }
     }
 }
@@ -123,6 +130,10 @@ impl ReacherConfig {
             ("side_change_margin", self.side_change_margin >= 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
             ("object_yaw", self.object_yaw.is_finite()),
+            (
+                "acceleration_fraction",
+                self.acceleration_fraction > 0.0 && self.acceleration_fraction <= 1.0,
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -131,7 +142,8 @@ impl ReacherConfig {
                     format!("reacher.{key}"),
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
                      min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
-                     side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite)",
+                     side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite, \
+                     0 < acceleration_fraction ≤ 1)",
                 ));
             }
         }
@@ -212,7 +224,19 @@ pub struct Reacher {
     ready_tool: Isometry3<f64>,
     task_index: Option<usize>,
     mode: ReachMode,
+    /// Largest peak linear acceleration of a reach trajectory, m/s² (infinite: none).
+    max_acceleration: f64,
 }
+
+/// How much longer than max(t_R, t_A) an acceleration-limited reach may take, at most (×4).
+const MAX_DURATION_STRETCH: f64 = 4.0;
+
+/// Factor by which an acceleration-limited reach's duration grows per try (1.05).
+const DURATION_STEP: f64 = 1.05;
+
+/// Instants at which a trajectory's acceleration is sampled for its peak (the acceleration of a
+/// quintic is a cubic per axis: 16 samples find its peak within a few per cent).
+const ACCELERATION_SAMPLES: usize = 16;
 
 /// A top-down tool orientation with the given yaw: the tool z axis points down and the tool
 /// x axis points along `yaw` in the horizontal plane.
@@ -242,7 +266,26 @@ impl Reacher {
             ready_tool,
             task_index: None,
             mode: ReachMode::Holding,
+            max_acceleration: f64::INFINITY,
         }
+    }
+
+    /// This reacher with its reach trajectories kept within `limit` m/s² of peak linear
+    /// acceleration, times [`ReacherConfig::acceleration_fraction`] (see there). A limit that
+    /// is not finite and positive sets none.
+    pub fn with_acceleration_limit(mut self, limit: f64) -> Self {
+        let max = limit * self.config.acceleration_fraction;
+        self.max_acceleration = if max.is_finite() && max > 0.0 {
+            max
+        } else {
+            f64::INFINITY
+        };
+        self
+    }
+
+    /// The largest peak linear acceleration a reach trajectory may have, m/s² (infinite: none).
+    pub fn max_acceleration(&self) -> f64 {
+        self.max_acceleration
     }
 
     /// The configuration.
@@ -296,12 +339,11 @@ impl Reacher {
 
         // At least one control period and the configured floor; capped so that a degenerate
         // configuration cannot produce an infinite duration.
-        let duration = time_to_range
+        let timed = time_to_range
             .max(transit_time)
             .max(config.min_duration)
             .max(input.dt)
             .min(MAX_DURATION);
-        let goal_position = input.target.predict(duration) + pregrasp;
         let current_yaw = tool_yaw(&input.tool.pose.rotation);
         let goal_yaw = match input.target_yaw {
             Some(yaw) if config.yaw_symmetry > 0.0 => {
@@ -314,21 +356,13 @@ impl Reacher {
         let goal_rotation = top_down(goal_yaw);
         let twist = &input.tool.twist;
         let acceleration = &input.tool.acceleration;
-
-        let translation = Quintic3::new(
-            &PointState {
-                position: input.tool.pose.translation.vector,
-                velocity: twist.fixed_rows::<3>(0).into_owned(),
-                acceleration: acceleration.fixed_rows::<3>(0).into_owned(),
-            },
-            &PointState {
-                position: goal_position,
-                velocity: input.target.velocity,
-                acceleration: Vector3::zeros(),
-            },
-            duration,
-        )
-        .expect("finite inputs and a positive duration");
+        let start = PointState {
+            position: input.tool.pose.translation.vector,
+            velocity: twist.fixed_rows::<3>(0).into_owned(),
+            acceleration: acceleration.fixed_rows::<3>(0).into_owned(),
+        };
+        let (duration, goal_position, translation) =
+            self.timed_translation(&start, &input.target, pregrasp, timed);
         // Rotation: the remaining rotation vector r (world frame) goes from its current value to
         // zero on the same time scaling; the tool's angular velocity is −ṙ.
         let remaining = (goal_rotation * input.tool.pose.rotation.inverse()).scaled_axis();
@@ -353,6 +387,45 @@ impl Reacher {
             duration,
             goal: Isometry3::from_parts(goal_position.into(), goal_rotation),
         })
+    }
+
+    /// The reach's translation: the quintic from `start` to the pre-grasp point (`pregrasp`
+    /// above the target predicted at the arrival), arriving at `timed` = max(t_R, t_A) or, when
+    /// that would take more peak acceleration than [`Reacher::max_acceleration`] (or than the
+    /// start's own, when that is already higher), at the first of a geometric series of longer
+    /// durations (up to [`MAX_DURATION_STRETCH`] × `timed`) that does not. Returns the duration,
+    /// the goal and the quintic.
+    fn timed_translation(
+        &self,
+        start: &PointState,
+        target: &TargetEstimate,
+        pregrasp: Vector3<f64>,
+        timed: f64,
+    ) -> (f64, Vector3<f64>, Quintic3) {
+        let plan = |duration: f64| {
+            let goal = target.predict(duration) + pregrasp;
+            let quintic = Quintic3::new(
+                start,
+                &PointState {
+                    position: goal,
+                    velocity: target.velocity,
+                    acceleration: Vector3::zeros(),
+                },
+                duration,
+            )
+            .expect("finite inputs and a positive duration");
+            (duration, goal, quintic)
+        };
+        let mut planned = plan(timed);
+        if !self.max_acceleration.is_finite() {
+            return planned;
+        }
+        let allowed = self.max_acceleration.max(start.acceleration.norm());
+        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION);
+        while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= longest {
+            planned = plan(planned.0 * DURATION_STEP);
+        }
+        planned
     }
 
     /// Whether the reach from `tool` (base frame) to `goal` (base frame at range entry) would
@@ -389,6 +462,20 @@ impl Reacher {
             goal: ready,
         }
     }
+}
+
+/// The largest acceleration magnitude of `quintic` over its duration, sampled at
+/// [`ACCELERATION_SAMPLES`] + 1 instants.
+fn peak_acceleration(quintic: &Quintic3) -> f64 {
+    let duration = quintic.duration();
+    (0..=ACCELERATION_SAMPLES)
+        .map(|k| {
+            quintic
+                .evaluate(duration * k as f64 / ACCELERATION_SAMPLES as f64)
+                .acceleration
+                .norm()
+        })
+        .fold(0.0, f64::max)
 }
 
 fn stack(linear: &Vector3<f64>, angular: &Vector3<f64>) -> Vector6<f64> {
