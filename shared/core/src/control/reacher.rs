@@ -327,10 +327,27 @@ impl Reacher {
         let arm_speed = (config.arm_speed_ratio * base_speed).max(MIN_ARM_SPEED);
         let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm() / arm_speed;
 
-        if self.mode == ReachMode::Holding
-            && time_to_range <= transit_time
+        let start = PointState {
+            position: input.tool.pose.translation.vector,
+            velocity: input.tool.twist.fixed_rows::<3>(0).into_owned(),
+            acceleration: input.tool.acceleration.fixed_rows::<3>(0).into_owned(),
+        };
+        // The trigger uses the transit time the reach would actually take: t_A, or longer when a
+        // reach of t_A would need more than the acceleration limit, so that a stretched reach
+        // starts early instead of arriving late.
+        let starts = self.mode == ReachMode::Holding
             && !self.changes_side(&tool_in_base_frame.coords, &goal_in_entry_frame.coords)
-        {
+            && (time_to_range <= transit_time
+                || time_to_range
+                    <= self
+                        .timed_translation(
+                            &start,
+                            &input.target,
+                            pregrasp,
+                            transit_time.max(config.min_duration).min(MAX_DURATION),
+                        )
+                        .0);
+        if starts {
             self.mode = ReachMode::Reaching;
         }
         if self.mode == ReachMode::Holding {
@@ -356,11 +373,6 @@ impl Reacher {
         let goal_rotation = top_down(goal_yaw);
         let twist = &input.tool.twist;
         let acceleration = &input.tool.acceleration;
-        let start = PointState {
-            position: input.tool.pose.translation.vector,
-            velocity: twist.fixed_rows::<3>(0).into_owned(),
-            acceleration: acceleration.fixed_rows::<3>(0).into_owned(),
-        };
         let (duration, goal_position, translation) =
             self.timed_translation(&start, &input.target, pregrasp, timed);
         // Rotation: the remaining rotation vector r (world frame) goes from its current value to
