@@ -43,8 +43,8 @@ pub struct BaseCommandRateConfig {
     pub enabled: bool,
     /// Fraction of the base joints' acceleration limits allowed for the target's change (1.0).
     pub limit_fraction: f64,
-    /// Forward acceleration allowed per unit of the base speed v_F, 1/s (3.0: v_F is reached in
-    /// a third of a second from rest; 0.6 m/s² at 0.2 m/s, the URDF's 0.8 m/s² from 0.27 m/s).
+    /// Forward acceleration allowed per unit of the base speed v_F, 1/s (2.5: v_F is reached in
+    /// 0.4 s from rest; 0.5 m/s² at 0.2 m/s, the URDF's 0.8 m/s² from 0.32 m/s).
     /// Applied by
     /// [`BaseCommandRate::for_speed`].
     pub forward_acceleration_per_speed: f64,
@@ -55,7 +55,7 @@ impl Default for BaseCommandRateConfig {
         Self {
             enabled: true,
             limit_fraction: 1.0,
-            forward_acceleration_per_speed: 3.0,
+            forward_acceleration_per_speed: 2.5,
         }
     }
 }

@@ -131,8 +131,8 @@ pub struct BaseControllerConfig {
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
     /// commanded ω may change by per second. 1.0: the base's full capability.
     pub yaw_acceleration_fraction: f64,
-    /// Yaw acceleration allowed per unit of the base speed v_F, rad/s² per m/s (7.5: 1.5 rad/s²
-    /// at 0.2 m/s, the LD-60's 2 rad/s² from 0.27 m/s); see
+    /// Yaw acceleration allowed per unit of the base speed v_F, rad/s² per m/s (6: 1.2 rad/s² at
+    /// 0.2 m/s, the LD-60's 2 rad/s² from 0.33 m/s); see
     /// [`BaseControllerConfig::yaw_acceleration`].
     pub yaw_acceleration_per_speed: f64,
     /// Fraction of v_F the base drives at once it is past a target's ξ_C while the task is
@@ -162,7 +162,7 @@ impl Default for BaseControllerConfig {
             run_in_tolerance: 0.3,
             pass_margin: 0.3,
             yaw_acceleration_fraction: 1.0,
-            yaw_acceleration_per_speed: 7.5,
+            yaw_acceleration_per_speed: 6.0,
             linger_speed_fraction: 0.5,
         }
     }
