@@ -57,8 +57,8 @@ pub struct TwistRateLimit {
     pub linear_acceleration: f64,
     /// Largest change of the angular velocity per second, rad/s².
     pub angular_acceleration: f64,
-    /// Linear limit per unit of the base speed v_F, 1/s (2.5: 0.5 m/s² at 0.2 m/s, 1.0 m/s² at
-    /// 0.4 m/s).
+    /// Linear limit per unit of the base speed v_F, 1/s (3.5: 0.7 m/s² at 0.2 m/s, 1.4 m/s² at
+    /// 0.4 m/s; 2.5 meets the paper's max |a| on Exp 1 but leaves a U-turn place's reach short).
     pub linear_acceleration_per_speed: f64,
     /// Floor of the speed-scaled linear limit, m/s² (0.3), so that a slow or stopped base
     /// still lets the servo move the tool.
@@ -70,7 +70,7 @@ impl Default for TwistRateLimit {
         Self {
             linear_acceleration: 2.0,
             angular_acceleration: 4.0,
-            linear_acceleration_per_speed: 2.5,
+            linear_acceleration_per_speed: 3.5,
             min_linear_acceleration: 0.3,
         }
     }

@@ -226,6 +226,9 @@ pub struct Reacher {
     mode: ReachMode,
     /// Largest peak linear acceleration of a reach trajectory, m/s² (infinite: none).
     max_acceleration: f64,
+    /// Duration of the last step's reach trajectory, s (none while holding): a stretched reach
+    /// never ends later than the one planned before it.
+    last_duration: Option<f64>,
 }
 
 /// How much longer than max(t_R, t_A) an acceleration-limited reach may take, at most (×4).
@@ -267,6 +270,7 @@ impl Reacher {
             task_index: None,
             mode: ReachMode::Holding,
             max_acceleration: f64::INFINITY,
+            last_duration: None,
         }
     }
 
@@ -305,6 +309,7 @@ impl Reacher {
         if self.task_index != Some(input.task_index) {
             self.task_index = Some(input.task_index);
             self.mode = ReachMode::Holding;
+            self.last_duration = None;
         }
         let config = &self.config;
         let time_to_range = input.time_to_range.max(0.0);
@@ -345,6 +350,7 @@ impl Reacher {
                             &input.target,
                             pregrasp,
                             transit_time.max(config.min_duration).min(MAX_DURATION),
+                            f64::INFINITY,
                         )
                         .0);
         if starts {
@@ -373,8 +379,12 @@ impl Reacher {
         let goal_rotation = top_down(goal_yaw);
         let twist = &input.tool.twist;
         let acceleration = &input.tool.acceleration;
+        let latest = self
+            .last_duration
+            .map_or(f64::INFINITY, |last| last - input.dt);
         let (duration, goal_position, translation) =
-            self.timed_translation(&start, &input.target, pregrasp, timed);
+            self.timed_translation(&start, &input.target, pregrasp, timed, latest);
+        self.last_duration = Some(duration);
         // Rotation: the remaining rotation vector r (world frame) goes from its current value to
         // zero on the same time scaling; the tool's angular velocity is −ṙ.
         let remaining = (goal_rotation * input.tool.pose.rotation.inverse()).scaled_axis();
@@ -405,14 +415,17 @@ impl Reacher {
     /// above the target predicted at the arrival), arriving at `timed` = max(t_R, t_A) or, when
     /// that would take more peak acceleration than [`Reacher::max_acceleration`] (or than the
     /// start's own, when that is already higher), at the first of a geometric series of longer
-    /// durations (up to [`MAX_DURATION_STRETCH`] × `timed`) that does not. Returns the duration,
-    /// the goal and the quintic.
+    /// durations (up to [`MAX_DURATION_STRETCH`] × `timed`, and never past `latest`, the end of
+    /// the last step's plan: replanned each step, a stretch that could recede would let the tool
+    /// creep toward a goal it never reaches) that does not. Returns the duration, the goal and
+    /// the quintic.
     fn timed_translation(
         &self,
         start: &PointState,
         target: &TargetEstimate,
         pregrasp: Vector3<f64>,
         timed: f64,
+        latest: f64,
     ) -> (f64, Vector3<f64>, Quintic3) {
         let plan = |duration: f64| {
             let goal = target.predict(duration) + pregrasp;
@@ -433,7 +446,7 @@ impl Reacher {
             return planned;
         }
         let allowed = self.max_acceleration.max(start.acceleration.norm());
-        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION);
+        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION).min(latest);
         while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= longest {
             planned = plan(planned.0 * DURATION_STEP);
         }
