@@ -168,6 +168,22 @@ mod tests {
     }
 
     #[test]
+    fn the_forward_and_yaw_limits_scale_with_the_base_speed_and_never_exceed_the_base() {
+        let urdf = BaseCommandRate::new(&frankie(), BaseCommandRateConfig::default());
+        let k = BaseCommandRateConfig::default().forward_acceleration_per_speed;
+        let slow = urdf.clone().for_speed(0.2).with_yaw_acceleration(1.2);
+        assert!((slow.forward_acceleration() - k * 0.2).abs() < 1e-12);
+        assert_eq!(slow.yaw_acceleration(), 1.2);
+        let fast = urdf.clone().for_speed(10.0).with_yaw_acceleration(100.0);
+        assert_eq!(fast.forward_acceleration(), urdf.forward_acceleration());
+        assert_eq!(fast.yaw_acceleration(), urdf.yaw_acceleration());
+        let mut limited = slow;
+        let out = limited.apply(BaseVelocity { v: 1.0, omega: 1.0 }, 0.1);
+        assert!((out.v - k * 0.2 * 0.1).abs() < 1e-12);
+        assert!((out.omega - 0.12).abs() < 1e-12);
+    }
+
+    #[test]
     fn a_jump_in_the_target_is_spread_over_the_base_acceleration_limits() {
         let robot = frankie();
         let limits = robot.limits();

@@ -247,6 +247,20 @@ mod config_file_tests {
     use super::*;
 
     #[test]
+    fn the_linear_twist_limit_scales_with_the_base_speed_within_its_bounds() {
+        let limits = TwistRateLimit::default();
+        let k = limits.linear_acceleration_per_speed;
+        assert!((limits.linear_limit(0.3) - k * 0.3).abs() < 1e-12);
+        assert!((limits.linear_limit(-0.3) - k * 0.3).abs() < 1e-12);
+        assert_eq!(limits.linear_limit(0.0), limits.min_linear_acceleration);
+        assert_eq!(limits.linear_limit(10.0), limits.linear_acceleration);
+        assert_eq!(limits.linear_limit(f64::NAN), limits.linear_acceleration);
+        let at = limits.for_speed(0.2);
+        assert!((at.linear_acceleration - k * 0.2).abs() < 1e-12);
+        assert_eq!(at.angular_acceleration, limits.angular_acceleration);
+    }
+
+    #[test]
     fn the_shipped_controllers_file_is_the_defaults() {
         let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/controllers.toml");
         let loaded = OnTheMoveConfig::load(&file).unwrap();

@@ -753,6 +753,56 @@ mod tests {
     }
 
     #[test]
+    fn an_acceleration_limited_reach_takes_longer_and_keeps_within_the_limit() {
+        let tool = ToolState {
+            pose: ready_tool(),
+            twist: Twist::zeros(),
+            acceleration: Vector6::zeros(),
+        };
+        let input = ReacherInput {
+            task_index: 0,
+            base: BasePose::default(),
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool,
+            target: TargetEstimate::fixed(Vector3::new(0.6, -0.6, 0.45)),
+            target_yaw: None,
+            time_to_range: 0.5,
+            range_entry_pose: BasePose::default(),
+            dt: DT,
+        };
+        let mut free = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let unlimited = free.step(&input).unwrap();
+        let peak = |duration: f64, goal: Vector3<f64>| {
+            peak_acceleration(
+                &Quintic3::new(
+                    &PointState::at_rest(tool.pose.translation.vector),
+                    &PointState::at_rest(goal),
+                    duration,
+                )
+                .unwrap(),
+            )
+        };
+        let unlimited_peak = peak(unlimited.duration, unlimited.goal.translation.vector);
+        let limit = 0.3;
+        assert!(unlimited_peak > limit, "{unlimited_peak}");
+        let mut limited = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool())
+            .with_acceleration_limit(limit);
+        let out = limited.step(&input).unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        assert!(out.duration > unlimited.duration);
+        let allowed = limit * ReacherConfig::default().acceleration_fraction;
+        assert!(peak(out.duration, out.goal.translation.vector) <= allowed + 1e-9);
+        // The next step's plan does not end later than this one.
+        let next = limited.step(&input).unwrap();
+        assert!(
+            next.duration <= out.duration - DT + 1e-9,
+            "{} {}",
+            next.duration,
+            out.duration
+        );
+    }
+
+    #[test]
     fn the_command_is_the_trajectory_velocity_one_step_ahead() {
         let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
         let tool = ToolState {
