@@ -12,6 +12,16 @@
 //! Choices:
 //! - The limits are the base joints' URDF acceleration limits times
 //!   [`BaseCommandRateConfig::limit_fraction`] (1.0: the base's full capability).
+//! - **The forward acceleration scales with the run's base speed v_F**
+//!   ([`BaseCommandRate::for_speed`]): at most
+//!   [`BaseCommandRateConfig::forward_acceleration_per_speed`] × v_F, so the base takes the same
+//!   time to reach v_F (or to come back to it from the linger speed after a task) at any v_F.
+//!   The arm cancels the base's acceleration at the tool only as well as it knows it (the base
+//!   lags its command, and the measured velocity is fed forward a cycle late); at the URDF's
+//!   0.8 m/s², a slow run's start and its speed-up after each task were the largest tool
+//!   accelerations left once the tool twist's own limit scaled with v_F. The yaw acceleration is
+//!   the base controller's ([`BaseCommandRate::with_yaw_acceleration`]), which scales with v_F
+//!   too: the controller plans its turns with it.
 //! - **On by default.** The base controller itself limits its turn command to the same yaw
 //!   acceleration (see [`crate::base_controller`]), so it plans with the turn the base will
 //!   actually make and this limit changes little on the way; it still ramps the forward speed
@@ -33,6 +43,11 @@ pub struct BaseCommandRateConfig {
     pub enabled: bool,
     /// Fraction of the base joints' acceleration limits allowed for the target's change (1.0).
     pub limit_fraction: f64,
+    /// Forward acceleration allowed per unit of the base speed v_F, 1/s (2.5: v_F is reached in
+    /// 0.4 s from rest; 0.5 m/s² at 0.2 m/s, the URDF's 0.8 m/s² from 0.32 m/s).
+    /// Applied by
+    /// [`BaseCommandRate::for_speed`].
+    pub forward_acceleration_per_speed: f64,
 }
 
 impl Default for BaseCommandRateConfig {
@@ -40,6 +55,7 @@ impl Default for BaseCommandRateConfig {
         Self {
             enabled: true,
             limit_fraction: 1.0,
+            forward_acceleration_per_speed: 2.5,
         }
     }
 }
@@ -69,6 +85,38 @@ impl BaseCommandRate {
             v_acceleration: acceleration(1),
             last: BaseVelocity::default(),
         }
+    }
+
+    /// This limiter with its forward acceleration limit at most
+    /// [`BaseCommandRateConfig::forward_acceleration_per_speed`] × |`forward_speed`| (the run's
+    /// base speed v_F). A product that is not finite and positive leaves the limit as it is.
+    pub fn for_speed(mut self, forward_speed: f64) -> Self {
+        let scaled = self.config.forward_acceleration_per_speed * forward_speed.abs();
+        if scaled.is_finite() && scaled > 0.0 {
+            self.v_acceleration = self.v_acceleration.min(scaled);
+        }
+        self
+    }
+
+    /// This limiter with its yaw acceleration limit at most `limit` rad/s² (the base
+    /// controller's, [`crate::base_controller::BaseControllerConfig::yaw_acceleration`], so that
+    /// the QP's base target turns as the controller planned). A limit that is not finite and
+    /// positive leaves it as it is.
+    pub fn with_yaw_acceleration(mut self, limit: f64) -> Self {
+        if limit.is_finite() && limit > 0.0 {
+            self.omega_acceleration = self.omega_acceleration.min(limit);
+        }
+        self
+    }
+
+    /// The yaw acceleration limit in use, rad/s².
+    pub fn yaw_acceleration(&self) -> f64 {
+        self.omega_acceleration
+    }
+
+    /// The forward acceleration limit in use, m/s².
+    pub fn forward_acceleration(&self) -> f64 {
+        self.v_acceleration
     }
 
     /// `wanted`, moved from the last target by at most the allowed change in `dt`. A non-finite
@@ -117,6 +165,22 @@ mod tests {
             enabled: true,
             ..BaseCommandRateConfig::default()
         }
+    }
+
+    #[test]
+    fn the_forward_and_yaw_limits_scale_with_the_base_speed_and_never_exceed_the_base() {
+        let urdf = BaseCommandRate::new(&frankie(), BaseCommandRateConfig::default());
+        let k = BaseCommandRateConfig::default().forward_acceleration_per_speed;
+        let slow = urdf.clone().for_speed(0.2).with_yaw_acceleration(1.2);
+        assert!((slow.forward_acceleration() - k * 0.2).abs() < 1e-12);
+        assert_eq!(slow.yaw_acceleration(), 1.2);
+        let fast = urdf.clone().for_speed(10.0).with_yaw_acceleration(100.0);
+        assert_eq!(fast.forward_acceleration(), urdf.forward_acceleration());
+        assert_eq!(fast.yaw_acceleration(), urdf.yaw_acceleration());
+        let mut limited = slow;
+        let out = limited.apply(BaseVelocity { v: 1.0, omega: 1.0 }, 0.1);
+        assert!((out.v - k * 0.2 * 0.1).abs() < 1e-12);
+        assert!((out.omega - 0.12).abs() < 1e-12);
     }
 
     #[test]

@@ -32,9 +32,14 @@
 //! 5. **Following.** Pure pursuit of the point `look_ahead` along the route (beyond the route's
 //!    end, straight on along the run-in line), at the forward speed v_F within the base's speed
 //!    limit. ω is saturated at the base's yaw-rate limit and changes by at most
-//!    `yaw_acceleration_fraction` × its yaw acceleration limit per second (ramping from rest at
-//!    the first step), so the command is one the base can execute and the QP, which is handed it
-//!    as the base target, plans the arm for the turn that happens.
+//!    `yaw_acceleration_fraction` × its yaw acceleration limit per second, and at most
+//!    `yaw_acceleration_per_speed` × v_F ([`BaseControllerConfig::yaw_acceleration`]; ramping
+//!    from rest at the first step), so the command is one the base can execute and the QP, which
+//!    is handed it as the base target, plans the arm for the turn that happens. The turns of a
+//!    route need ω = v_F/R on arcs of radius R, so the time to get into one stays the same at
+//!    any v_F; the arm cancels the base's yaw acceleration at the tool (0.6 m out) only as well
+//!    as it knows it, and at the URDF limit a slow run's start and its turns after each task
+//!    jerked the tool as hard as a fast run's.
 //! 6. **t_R.** The time until the target is within the robot's manipulation range of the arm
 //!    base (first arm joint), along the route at v_F, with the target moving at its estimated
 //!    velocity; and the base pose then. If the route never brings it within range, the time of
@@ -126,6 +131,10 @@ pub struct BaseControllerConfig {
     /// Fraction of the base's yaw acceleration limit (URDF `base_yaw` acceleration) the
     /// commanded ω may change by per second. 1.0: the base's full capability.
     pub yaw_acceleration_fraction: f64,
+    /// Yaw acceleration allowed per unit of the base speed v_F, rad/s² per m/s (6: 1.2 rad/s² at
+    /// 0.2 m/s, the LD-60's 2 rad/s² from 0.33 m/s); see
+    /// [`BaseControllerConfig::yaw_acceleration`].
+    pub yaw_acceleration_per_speed: f64,
     /// Fraction of v_F the base drives at once it is past a target's ξ_C while the task is
     /// still not done (a late reach, a lift, a drop or a press), so that the arm finishes near
     /// the target instead of being carried away from it.
@@ -153,12 +162,27 @@ impl Default for BaseControllerConfig {
             run_in_tolerance: 0.3,
             pass_margin: 0.3,
             yaw_acceleration_fraction: 1.0,
+            yaw_acceleration_per_speed: 6.0,
             linger_speed_fraction: 0.5,
         }
     }
 }
 
 impl BaseControllerConfig {
+    /// The yaw acceleration the commanded ω may change by, rad/s², for a base whose limit is
+    /// `max_yaw_acceleration`: that limit × `yaw_acceleration_fraction`, and at most
+    /// `yaw_acceleration_per_speed` × v_F (`forward_speed`). The QP resolver limits the base
+    /// target it hands on to the same value.
+    pub fn yaw_acceleration(&self, max_yaw_acceleration: f64) -> f64 {
+        let limit = max_yaw_acceleration * self.yaw_acceleration_fraction;
+        let scaled = self.yaw_acceleration_per_speed * self.forward_speed.abs();
+        if scaled.is_finite() && scaled > 0.0 {
+            limit.min(scaled)
+        } else {
+            limit
+        }
+    }
+
     /// Checks the values; `file` is the configuration file they came from, named in the error.
     pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
         let positive = |v: f64| v > 0.0 && v.is_finite();
@@ -195,6 +219,10 @@ impl BaseControllerConfig {
                 positive(self.yaw_acceleration_fraction),
             ),
             (
+                "yaw_acceleration_per_speed",
+                positive(self.yaw_acceleration_per_speed),
+            ),
+            (
                 "linger_speed_fraction",
                 self.linger_speed_fraction > 0.0 && self.linger_speed_fraction <= 1.0,
             ),
@@ -206,7 +234,7 @@ impl BaseControllerConfig {
                     format!("base.{key}"),
                     "out of range (need forward_speed, closest_approach_radius, min_turn_radius, \
                      look_ahead, replan_deviation, replan_period, route_refresh_distance, run_in_tolerance, \
-                     yaw_acceleration_fraction > 0; run_in, run_out, \
+                     yaw_acceleration_fraction, yaw_acceleration_per_speed > 0; run_in, run_out, \
                      turn_cost, replan_margin, commit_distance, obstacle_radius, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
@@ -609,8 +637,9 @@ impl BaseController {
             (speed, pursue(b, point, speed))
         };
 
-        let max_change = self.model.max_yaw_acceleration
-            * self.config.yaw_acceleration_fraction
+        let max_change = self
+            .config
+            .yaw_acceleration(self.model.max_yaw_acceleration)
             * input.dt.max(0.0);
         let omega = wanted_omega
             .clamp(self.last_omega - max_change, self.last_omega + max_change)

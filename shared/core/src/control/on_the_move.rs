@@ -13,14 +13,19 @@
 //! - **Tool state fed back to the reacher** is the twist the QP resolver resolved on the previous
 //!   cycle, with the reacher's planned acceleration (see [`crate::stack::reacher`]).
 //! - **e_t** for the QP's 1/e_t weights is the tool's distance to the current target, capped at
-//!   [`OnTheMoveConfig::max_position_error`].
+//!   [`OnTheMoveConfig::max_position_error`]; it rises by at most
+//!   [`OnTheMoveConfig::max_position_error_rate`] per second. When a task ends the distance jumps
+//!   from a few centimetres to metres: e_t at once at its cap would halve the slack's weight in
+//!   one cycle, and the tool, held to its twist half as tightly against the manipulability
+//!   gradient and the base's lag, would jerk (about 0.5 m/s² of the peak after a grasp).
 //! - **Twist rate limit.** The twist sent to the QP changes by at most [`TwistRateLimit`] per
 //!   second, so hand-overs (reacher → final phase → next task) do not jerk the tool.
 //! - **Base velocity error feed-forward.** The twist sent to the QP also carries the correction
 //!   of [`crate::base_slip`]: minus the tool motion caused by the difference between the base's
 //!   measured velocity and the one the QP commanded on the previous cycle.
 //! - **Base target rate limit** ([`crate::base_command_rate`]): the base controller's velocity
-//!   target reaches the QP with its change limited to the base's acceleration limits.
+//!   target reaches the QP with its change limited to the base's acceleration limits, the
+//!   forward one also to a multiple of the run's base speed.
 
 use std::path::Path;
 
@@ -37,13 +42,27 @@ use crate::resolver::ResolverConfig;
 use crate::types::Twist;
 
 /// Limits on how fast the commanded tool twist may change.
+///
+/// The linear limit scales with the run's base speed v_F: every tool motion of MotM is paced by
+/// the base (the reacher's transit speed is k_A·v_B, the final-phase servo's speed limit k_A·v_B,
+/// the tool carried at v_F), so the accelerations that the tasks need scale with it too, and a
+/// limit fixed at what the fastest run needs lets every hand-over of a slow run jerk the tool
+/// as hard as a fast one's. The limit at v_F is
+/// `clamp(linear_acceleration_per_speed · v_F, min_linear_acceleration, linear_acceleration)`
+/// ([`TwistRateLimit::for_speed`]).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TwistRateLimit {
-    /// Largest change of the linear velocity per second, m/s².
+    /// Largest change of the linear velocity per second at any base speed, m/s².
     pub linear_acceleration: f64,
     /// Largest change of the angular velocity per second, rad/s².
     pub angular_acceleration: f64,
+    /// Linear limit per unit of the base speed v_F, 1/s (3.5: 0.7 m/s² at 0.2 m/s, 1.4 m/s² at
+    /// 0.4 m/s; 2.5 meets the paper's max |a| on Exp 1 but leaves a U-turn place's reach short).
+    pub linear_acceleration_per_speed: f64,
+    /// Floor of the speed-scaled linear limit, m/s² (0.3), so that a slow or stopped base
+    /// still lets the servo move the tool.
+    pub min_linear_acceleration: f64,
 }
 
 impl Default for TwistRateLimit {
@@ -51,11 +70,35 @@ impl Default for TwistRateLimit {
         Self {
             linear_acceleration: 2.0,
             angular_acceleration: 4.0,
+            linear_acceleration_per_speed: 3.5,
+            min_linear_acceleration: 0.3,
         }
     }
 }
 
 impl TwistRateLimit {
+    /// The linear acceleration limit at base speed `forward_speed` (m/s; its magnitude counts),
+    /// m/s²: `linear_acceleration_per_speed · |v_F|` within `[min_linear_acceleration,
+    /// linear_acceleration]`.
+    pub fn linear_limit(&self, forward_speed: f64) -> f64 {
+        let scaled = self.linear_acceleration_per_speed * forward_speed.abs();
+        let floor = self.min_linear_acceleration.min(self.linear_acceleration);
+        if scaled.is_finite() {
+            scaled.clamp(floor, self.linear_acceleration)
+        } else {
+            self.linear_acceleration
+        }
+    }
+
+    /// These limits with the linear one fixed at its value for base speed `forward_speed`
+    /// ([`TwistRateLimit::linear_limit`]).
+    pub fn for_speed(&self, forward_speed: f64) -> Self {
+        Self {
+            linear_acceleration: self.linear_limit(forward_speed),
+            ..*self
+        }
+    }
+
     /// `wanted`, moved from `last` by at most the allowed change in `dt` (direction kept).
     pub fn apply(&self, last: &Twist, wanted: &Twist, dt: f64) -> Twist {
         let change = wanted - last;
@@ -97,6 +140,10 @@ pub struct OnTheMoveConfig {
     /// be followed, so the slack must stay expensive even when the target is metres away;
     /// the cap also keeps the weights from jumping when a new task starts.
     pub max_position_error: f64,
+    /// Fastest rise of e_t, m/s (0.2: from a grasp's 0.1 m to the 0.2 m cap in half a
+    /// second). It falls as fast as the distance does, so the slack tightens at once as the tool
+    /// closes on a target.
+    pub max_position_error_rate: f64,
     /// Feed-forward of the base's velocity error into the twist sent to the QP.
     pub base_slip: BaseSlipConfig,
     /// Acceleration limit on the base velocity target sent to the QP.
@@ -113,6 +160,7 @@ impl Default for OnTheMoveConfig {
             resolver: ResolverConfig::default(),
             twist_rate: TwistRateLimit::default(),
             max_position_error: 0.2,
+            max_position_error_rate: 0.2,
             base_slip: BaseSlipConfig::default(),
             base_rate: BaseCommandRateConfig::default(),
         }
@@ -166,7 +214,20 @@ impl OnTheMoveConfig {
                 "twist_rate.angular_acceleration",
                 self.twist_rate.angular_acceleration,
             ),
+            (
+                "twist_rate.linear_acceleration_per_speed",
+                self.twist_rate.linear_acceleration_per_speed,
+            ),
+            (
+                "twist_rate.min_linear_acceleration",
+                self.twist_rate.min_linear_acceleration,
+            ),
+            (
+                "base_rate.forward_acceleration_per_speed",
+                self.base_rate.forward_acceleration_per_speed,
+            ),
             ("max_position_error", self.max_position_error),
+            ("max_position_error_rate", self.max_position_error_rate),
         ];
         for (key, value) in rates {
             if !(value.is_finite() && value > 0.0) {
@@ -186,6 +247,20 @@ mod config_file_tests {
     use super::*;
 
     #[test]
+    fn the_linear_twist_limit_scales_with_the_base_speed_within_its_bounds() {
+        let limits = TwistRateLimit::default();
+        let k = limits.linear_acceleration_per_speed;
+        assert!((limits.linear_limit(0.3) - k * 0.3).abs() < 1e-12);
+        assert!((limits.linear_limit(-0.3) - k * 0.3).abs() < 1e-12);
+        assert_eq!(limits.linear_limit(0.0), limits.min_linear_acceleration);
+        assert_eq!(limits.linear_limit(10.0), limits.linear_acceleration);
+        assert_eq!(limits.linear_limit(f64::NAN), limits.linear_acceleration);
+        let at = limits.for_speed(0.2);
+        assert!((at.linear_acceleration - k * 0.2).abs() < 1e-12);
+        assert_eq!(at.angular_acceleration, limits.angular_acceleration);
+    }
+
+    #[test]
     fn the_shipped_controllers_file_is_the_defaults() {
         let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/controllers.toml");
         let loaded = OnTheMoveConfig::load(&file).unwrap();
@@ -201,9 +276,22 @@ mod config_file_tests {
         let cases = [
             ("[reacher]\narm_sped_ratio = 0.5\n", "arm_sped_ratio"),
             ("max_position_error = -1.0\n", "max_position_error"),
+            ("max_position_error_rate = 0.0\n", "max_position_error_rate"),
             (
                 "[twist_rate]\nlinear_acceleration = nan\n",
                 "linear_acceleration",
+            ),
+            (
+                "[twist_rate]\nlinear_acceleration_per_speed = -1.0\n",
+                "twist_rate.linear_acceleration_per_speed",
+            ),
+            (
+                "[twist_rate]\nmin_linear_acceleration = 0.0\n",
+                "twist_rate.min_linear_acceleration",
+            ),
+            (
+                "[base_rate]\nforward_acceleration_per_speed = inf\n",
+                "base_rate.forward_acceleration_per_speed",
             ),
             (
                 "[mission]\nlandmark_fix_weight = 2.0\n",

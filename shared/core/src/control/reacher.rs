@@ -89,6 +89,12 @@ pub struct ReacherConfig {
     /// the multiple of `yaw_symmetry` closest to the gripper's current yaw, whatever the base's
     /// heading as it passes the object.
     pub object_yaw: f64,
+    /// Fraction of the tool twist's linear acceleration limit (the QP resolver's twist rate
+    /// limit at the run's base speed) that a reach trajectory may use at its peak (0.9). A
+    /// quintic that would need more is given a longer duration than max(t_R, t_A), so that the
+    /// rate limit never cuts into the plan: a cut plan arrives late and fast, and the hand-over
+    /// to the final phase then jerks the tool. Outside (0, 1] nothing is stretched.
+    pub acceleration_fraction: f64,
 }
 
 impl Default for ReacherConfig {
@@ -103,6 +109,7 @@ impl Default for ReacherConfig {
             side_change_margin: 0.2,
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
             object_yaw: 0.0,
+            acceleration_fraction: 0.9,
         }
     }
 }
@@ -123,6 +130,10 @@ impl ReacherConfig {
             ("side_change_margin", self.side_change_margin >= 0.0),
             ("yaw_symmetry", self.yaw_symmetry > 0.0),
             ("object_yaw", self.object_yaw.is_finite()),
+            (
+                "acceleration_fraction",
+                self.acceleration_fraction > 0.0 && self.acceleration_fraction <= 1.0,
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -131,7 +142,8 @@ impl ReacherConfig {
                     format!("reacher.{key}"),
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
                      min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
-                     side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite)",
+                     side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite, \
+                     0 < acceleration_fraction ≤ 1)",
                 ));
             }
         }
@@ -212,7 +224,22 @@ pub struct Reacher {
     ready_tool: Isometry3<f64>,
     task_index: Option<usize>,
     mode: ReachMode,
+    /// Largest peak linear acceleration of a reach trajectory, m/s² (infinite: none).
+    max_acceleration: f64,
+    /// Duration of the last step's reach trajectory, s (none while holding): a stretched reach
+    /// never ends later than the one planned before it.
+    last_duration: Option<f64>,
 }
+
+/// How much longer than max(t_R, t_A) an acceleration-limited reach may take, at most (×4).
+const MAX_DURATION_STRETCH: f64 = 4.0;
+
+/// Factor by which an acceleration-limited reach's duration grows per try (1.05).
+const DURATION_STEP: f64 = 1.05;
+
+/// Instants at which a trajectory's acceleration is sampled for its peak (the acceleration of a
+/// quintic is a cubic per axis: 16 samples find its peak within a few per cent).
+const ACCELERATION_SAMPLES: usize = 16;
 
 /// A top-down tool orientation with the given yaw: the tool z axis points down and the tool
 /// x axis points along `yaw` in the horizontal plane.
@@ -242,7 +269,27 @@ impl Reacher {
             ready_tool,
             task_index: None,
             mode: ReachMode::Holding,
+            max_acceleration: f64::INFINITY,
+            last_duration: None,
         }
+    }
+
+    /// This reacher with its reach trajectories kept within `limit` m/s² of peak linear
+    /// acceleration, times [`ReacherConfig::acceleration_fraction`] (see there). A limit that
+    /// is not finite and positive sets none.
+    pub fn with_acceleration_limit(mut self, limit: f64) -> Self {
+        let max = limit * self.config.acceleration_fraction;
+        self.max_acceleration = if max.is_finite() && max > 0.0 {
+            max
+        } else {
+            f64::INFINITY
+        };
+        self
+    }
+
+    /// The largest peak linear acceleration a reach trajectory may have, m/s² (infinite: none).
+    pub fn max_acceleration(&self) -> f64 {
+        self.max_acceleration
     }
 
     /// The configuration.
@@ -262,6 +309,7 @@ impl Reacher {
         if self.task_index != Some(input.task_index) {
             self.task_index = Some(input.task_index);
             self.mode = ReachMode::Holding;
+            self.last_duration = None;
         }
         let config = &self.config;
         let time_to_range = input.time_to_range.max(0.0);
@@ -284,10 +332,28 @@ impl Reacher {
         let arm_speed = (config.arm_speed_ratio * base_speed).max(MIN_ARM_SPEED);
         let transit_time = (goal_in_entry_frame - tool_in_base_frame).norm() / arm_speed;
 
-        if self.mode == ReachMode::Holding
-            && time_to_range <= transit_time
+        let start = PointState {
+            position: input.tool.pose.translation.vector,
+            velocity: input.tool.twist.fixed_rows::<3>(0).into_owned(),
+            acceleration: input.tool.acceleration.fixed_rows::<3>(0).into_owned(),
+        };
+        // The trigger uses the transit time the reach would actually take: t_A, or longer when a
+        // reach of t_A would need more than the acceleration limit, so that a stretched reach
+        // starts early instead of arriving late.
+        let starts = self.mode == ReachMode::Holding
             && !self.changes_side(&tool_in_base_frame.coords, &goal_in_entry_frame.coords)
-        {
+            && (time_to_range <= transit_time
+                || time_to_range
+                    <= self
+                        .timed_translation(
+                            &start,
+                            &input.target,
+                            pregrasp,
+                            transit_time.max(config.min_duration).min(MAX_DURATION),
+                            f64::INFINITY,
+                        )
+                        .0);
+        if starts {
             self.mode = ReachMode::Reaching;
         }
         if self.mode == ReachMode::Holding {
@@ -296,12 +362,11 @@ impl Reacher {
 
         // At least one control period and the configured floor; capped so that a degenerate
         // configuration cannot produce an infinite duration.
-        let duration = time_to_range
+        let timed = time_to_range
             .max(transit_time)
             .max(config.min_duration)
             .max(input.dt)
             .min(MAX_DURATION);
-        let goal_position = input.target.predict(duration) + pregrasp;
         let current_yaw = tool_yaw(&input.tool.pose.rotation);
         let goal_yaw = match input.target_yaw {
             Some(yaw) if config.yaw_symmetry > 0.0 => {
@@ -314,21 +379,12 @@ impl Reacher {
         let goal_rotation = top_down(goal_yaw);
         let twist = &input.tool.twist;
         let acceleration = &input.tool.acceleration;
-
-        let translation = Quintic3::new(
-            &PointState {
-                position: input.tool.pose.translation.vector,
-                velocity: twist.fixed_rows::<3>(0).into_owned(),
-                acceleration: acceleration.fixed_rows::<3>(0).into_owned(),
-            },
-            &PointState {
-                position: goal_position,
-                velocity: input.target.velocity,
-                acceleration: Vector3::zeros(),
-            },
-            duration,
-        )
-        .expect("finite inputs and a positive duration");
+        let latest = self
+            .last_duration
+            .map_or(f64::INFINITY, |last| last - input.dt);
+        let (duration, goal_position, translation) =
+            self.timed_translation(&start, &input.target, pregrasp, timed, latest);
+        self.last_duration = Some(duration);
         // Rotation: the remaining rotation vector r (world frame) goes from its current value to
         // zero on the same time scaling; the tool's angular velocity is −ṙ.
         let remaining = (goal_rotation * input.tool.pose.rotation.inverse()).scaled_axis();
@@ -353,6 +409,48 @@ impl Reacher {
             duration,
             goal: Isometry3::from_parts(goal_position.into(), goal_rotation),
         })
+    }
+
+    /// The reach's translation: the quintic from `start` to the pre-grasp point (`pregrasp`
+    /// above the target predicted at the arrival), arriving at `timed` = max(t_R, t_A) or, when
+    /// that would take more peak acceleration than [`Reacher::max_acceleration`] (or than the
+    /// start's own, when that is already higher), at the first of a geometric series of longer
+    /// durations (up to [`MAX_DURATION_STRETCH`] × `timed`, and never past `latest`, the end of
+    /// the last step's plan: replanned each step, a stretch that could recede would let the tool
+    /// creep toward a goal it never reaches) that does not. Returns the duration, the goal and
+    /// the quintic.
+    fn timed_translation(
+        &self,
+        start: &PointState,
+        target: &TargetEstimate,
+        pregrasp: Vector3<f64>,
+        timed: f64,
+        latest: f64,
+    ) -> (f64, Vector3<f64>, Quintic3) {
+        let plan = |duration: f64| {
+            let goal = target.predict(duration) + pregrasp;
+            let quintic = Quintic3::new(
+                start,
+                &PointState {
+                    position: goal,
+                    velocity: target.velocity,
+                    acceleration: Vector3::zeros(),
+                },
+                duration,
+            )
+            .expect("finite inputs and a positive duration");
+            (duration, goal, quintic)
+        };
+        let mut planned = plan(timed);
+        if !self.max_acceleration.is_finite() {
+            return planned;
+        }
+        let allowed = self.max_acceleration.max(start.acceleration.norm());
+        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION).min(latest);
+        while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= longest {
+            planned = plan(planned.0 * DURATION_STEP);
+        }
+        planned
     }
 
     /// Whether the reach from `tool` (base frame) to `goal` (base frame at range entry) would
@@ -389,6 +487,20 @@ impl Reacher {
             goal: ready,
         }
     }
+}
+
+/// The largest acceleration magnitude of `quintic` over its duration, sampled at
+/// [`ACCELERATION_SAMPLES`] + 1 instants.
+fn peak_acceleration(quintic: &Quintic3) -> f64 {
+    let duration = quintic.duration();
+    (0..=ACCELERATION_SAMPLES)
+        .map(|k| {
+            quintic
+                .evaluate(duration * k as f64 / ACCELERATION_SAMPLES as f64)
+                .acceleration
+                .norm()
+        })
+        .fold(0.0, f64::max)
 }
 
 fn stack(linear: &Vector3<f64>, angular: &Vector3<f64>) -> Vector6<f64> {
@@ -638,6 +750,56 @@ mod tests {
     fn arrives_on_a_moving_object_with_its_velocity() {
         assert_arrives(Vector3::new(0.0, 0.03, 0.0));
         assert_arrives(Vector3::new(-0.03, 0.0, 0.0));
+    }
+
+    #[test]
+    fn an_acceleration_limited_reach_takes_longer_and_keeps_within_the_limit() {
+        let tool = ToolState {
+            pose: ready_tool(),
+            twist: Twist::zeros(),
+            acceleration: Vector6::zeros(),
+        };
+        let input = ReacherInput {
+            task_index: 0,
+            base: BasePose::default(),
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool,
+            target: TargetEstimate::fixed(Vector3::new(0.6, -0.6, 0.45)),
+            target_yaw: None,
+            time_to_range: 0.5,
+            range_entry_pose: BasePose::default(),
+            dt: DT,
+        };
+        let mut free = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let unlimited = free.step(&input).unwrap();
+        let peak = |duration: f64, goal: Vector3<f64>| {
+            peak_acceleration(
+                &Quintic3::new(
+                    &PointState::at_rest(tool.pose.translation.vector),
+                    &PointState::at_rest(goal),
+                    duration,
+                )
+                .unwrap(),
+            )
+        };
+        let unlimited_peak = peak(unlimited.duration, unlimited.goal.translation.vector);
+        let limit = 0.3;
+        assert!(unlimited_peak > limit, "{unlimited_peak}");
+        let mut limited = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool())
+            .with_acceleration_limit(limit);
+        let out = limited.step(&input).unwrap();
+        assert_eq!(out.mode, ReachMode::Reaching);
+        assert!(out.duration > unlimited.duration);
+        let allowed = limit * ReacherConfig::default().acceleration_fraction;
+        assert!(peak(out.duration, out.goal.translation.vector) <= allowed + 1e-9);
+        // The next step's plan does not end later than this one.
+        let next = limited.step(&input).unwrap();
+        assert!(
+            next.duration <= out.duration - DT + 1e-9,
+            "{} {}",
+            next.duration,
+            out.duration
+        );
     }
 
     #[test]

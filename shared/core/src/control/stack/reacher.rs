@@ -2,7 +2,9 @@
 //! measured arm state. The tool state fed back to it is the commanded motion: the twist the QP
 //! resolver resolved last (the one twist-rate state of the stack, which the resolver keeps and
 //! publishes), with the reacher's own planned acceleration while it is the one reaching, and
-//! the resolved twist's rate of change otherwise (final phase, hand-overs).
+//! the resolved twist's rate of change otherwise (final phase, hand-overs). The reacher plans
+//! within the resolver's linear twist rate limit at the run's base speed
+//! ([`crate::reacher::Reacher::with_acceleration_limit`]).
 
 use nalgebra::Vector6;
 
@@ -72,7 +74,8 @@ impl ReacherCycle {
     /// A reacher for `robot` with `config`, run every `dt` seconds.
     pub fn new(robot: Robot, config: OnTheMoveConfig, dt: f64) -> Self {
         Self {
-            reacher: Reacher::new(config.reacher.clone(), &robot),
+            reacher: Reacher::new(config.reacher.clone(), &robot)
+                .with_acceleration_limit(config.twist_rate.linear_limit(config.base.forward_speed)),
             robot,
             config,
             dt,

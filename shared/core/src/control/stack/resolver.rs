@@ -17,7 +17,8 @@
 //!   above the cube, during a grasp), nor a stop of the arm alone, which would let the moving
 //!   base sweep the tool through the cube, keeps the object.
 //! - **Twist rate limit and e_t cap** as in [`crate::on_the_move`]: the chosen twist moves from
-//!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`], and e_t is
+//!   the last resolved twist by at most [`crate::on_the_move::TwistRateLimit`] (its linear
+//!   limit at the run's base speed, [`crate::on_the_move::TwistRateLimit::for_speed`]), and e_t is
 //!   capped at `max_position_error`. After the mission the reacher's twist (arm at its ready
 //!   pose) is the active one.
 //! - **Base velocity error feed-forward** as in [`crate::on_the_move`]: the twist asked of the
@@ -37,6 +38,7 @@
 use serde::Deserialize;
 
 use crate::base_command_rate::BaseCommandRate;
+use crate::base_controller::BaseModel;
 use crate::base_slip::slip_correction;
 use crate::kinematics::BasePose;
 use crate::mission::Phase;
@@ -161,6 +163,8 @@ pub struct ResolverCycle {
     last_twist: Twist,
     /// The base velocity resolved on the previous cycle.
     last_base_command: BaseVelocity,
+    /// e_t handed to the QP on the previous cycle (none after a stop).
+    last_position_error: Option<f64>,
     /// Rate limit on the base target handed to the QP.
     base_rate: BaseCommandRate,
     fallbacks: u64,
@@ -181,11 +185,15 @@ impl ResolverCycle {
         limits: ResolverCycleConfig,
         dt: f64,
     ) -> Self {
-        let base_rate = BaseCommandRate::new(&robot, config.base_rate);
+        let max_yaw_acceleration = BaseModel::from_robot(&robot).max_yaw_acceleration;
+        let base_rate = BaseCommandRate::new(&robot, config.base_rate)
+            .for_speed(config.base.forward_speed)
+            .with_yaw_acceleration(config.base.yaw_acceleration(max_yaw_acceleration));
         Self {
             dt,
             last_twist: Twist::zeros(),
             last_base_command: BaseVelocity::default(),
+            last_position_error: None,
             base_rate,
             resolver: RedundancyResolver::for_robot(&robot, config.resolver.clone()),
             robot,
@@ -279,6 +287,7 @@ impl ResolverCycle {
         self.stops += 1;
         self.last_twist = Twist::zeros();
         self.last_base_command = BaseVelocity::default();
+        self.last_position_error = None;
         self.base_rate.reset();
         ResolverCycleOutput {
             resolved: ResolverOutput {
@@ -292,6 +301,23 @@ impl ResolverCycle {
             source: TwistSource::Stopped,
             tool_to_target,
         }
+    }
+
+    /// e_t for this cycle: `tool_to_target` capped at `max_position_error`, risen from the last
+    /// cycle's by at most `max_position_error_rate` per second.
+    fn position_error(&mut self, tool_to_target: f64) -> f64 {
+        let capped = tool_to_target.min(self.config.max_position_error);
+        let e_t = match self.last_position_error {
+            Some(last) => capped.min(last + self.config.max_position_error_rate * self.dt),
+            None => capped,
+        };
+        self.last_position_error = Some(e_t);
+        e_t
+    }
+
+    /// The e_t handed to the QP on the last cycle, m (none before the first and after a stop).
+    pub fn last_position_error(&self) -> Option<f64> {
+        self.last_position_error
     }
 
     /// One cycle.
@@ -329,6 +355,7 @@ impl ResolverCycle {
         let twist = self
             .config
             .twist_rate
+            .for_speed(self.config.base.forward_speed)
             .apply(&self.last_twist, &twist, self.dt);
         self.last_twist = twist;
         let base_target = match input.base_target {
@@ -343,12 +370,13 @@ impl ResolverCycle {
             self.last_base_command,
             &self.config.base_slip,
         );
+        let position_error = self.position_error(tool_to_target);
         let resolved = self.resolver.resolve_motm(
             &self.robot,
             &state.base,
             state.arm_q,
             twist + correction,
-            tool_to_target.min(self.config.max_position_error),
+            position_error,
             Some(self.base_rate.apply(base_target, self.dt)),
         );
         self.last_base_command = resolved.base;

@@ -262,6 +262,7 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
     // No rate limit here, so the chosen twist is resolved as it is.
     let mut config = OnTheMoveConfig::default();
     config.twist_rate.linear_acceleration = 1e9;
+    config.twist_rate.linear_acceleration_per_speed = 1e9;
     config.twist_rate.angular_acceleration = 1e9;
     let mut resolver = ResolverCycle::new(robot, config, ResolverCycleConfig::default(), 0.005);
     let reach_twist = Twist::new(0.05, 0.0, 0.0, 0.0, 0.0, 0.0);
@@ -304,7 +305,12 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         0.005,
     );
     let out = slow.step(&input);
-    let limit = OnTheMoveConfig::default().twist_rate.linear_acceleration * 0.005;
+    // Its linear limit is the one at the run's base speed.
+    let defaults = OnTheMoveConfig::default();
+    let limit = defaults
+        .twist_rate
+        .linear_limit(defaults.base.forward_speed)
+        * 0.005;
     assert!((out.twist.norm() - limit).abs() < 1e-12, "{}", out.twist);
     // Another controller is active: its twist has not come yet, so the reach twist bridges.
     input.active_controller = Some(2);
