@@ -876,7 +876,10 @@ mod tests {
                 &mut portable,
             );
             assert!(dispatched == portable, "pose {k}");
-            let red = |p: &[u8]| p[0] > 80 && p[0] > p[1] + 50 && p[0] > p[2] + 50;
+            let red = |p: &[u8]| {
+                let [r, g, b] = [p[0], p[1], p[2]].map(u16::from);
+                r > 80 && r > g + 50 && r > b + 50
+            };
             with_cube += usize::from(dispatched.chunks_exact(3).any(red));
         }
         assert!(
