@@ -534,10 +534,11 @@ impl Perception {
                 row_start = i;
             }
             // Runs of the row above overlapping [start − 1, end] (end exclusive) touch this one.
-            for j in above..row_start {
-                let prev = runs[j];
+            // Runs wholly left of this one are wholly left of the rest of the row too.
+            let mut next_above = above;
+            for (j, prev) in runs.iter().enumerate().take(row_start).skip(above) {
                 if prev.end < run.start {
-                    above = j + 1;
+                    next_above = j + 1;
                     continue;
                 }
                 if prev.start > run.end {
@@ -545,6 +546,7 @@ impl Perception {
                 }
                 union(parent, i as u32, j as u32);
             }
+            above = next_above;
         }
         self.blobs.clear();
         self.blob_of_root.clear();
