@@ -256,6 +256,9 @@ pub struct BaseControllerInput {
     pub target: TargetEstimate,
     /// Position of the next target (x and y are used).
     pub next_target: nalgebra::Vector3<f64>,
+    /// Position of the target after the next one, if the mission has one: the next target's
+    /// pass is chosen for the way on to it (x and y are used).
+    pub after_next: Option<nalgebra::Vector3<f64>>,
     /// Time since the previous step, s: bounds the change of ω (see the module docs).
     pub dt: f64,
 }
@@ -532,6 +535,9 @@ impl BaseController {
         ensure_finite("target.position", input.target.position.iter())?;
         ensure_finite("target.velocity", input.target.velocity.iter())?;
         ensure_finite("next_target", input.next_target.iter())?;
+        if let Some(after) = &input.after_next {
+            ensure_finite("after_next", after.iter())?;
+        }
         ensure_finite("dt", std::slice::from_ref(&input.dt))?;
         self.clock += input.dt.max(0.0);
 
@@ -547,6 +553,7 @@ impl BaseController {
         let base_xy = Vector2::new(b.x, b.y);
         let target = xy(&input.target.position);
         let next = xy(&input.next_target);
+        let after_next = input.after_next.as_ref().map(xy);
         let to_target = target - base_xy;
         let heading = Vector2::new(b.yaw.cos(), b.yaw.sin());
         let r_c = self.config.closest_approach_radius;
@@ -583,12 +590,26 @@ impl BaseController {
             Route::Line(pass)
         } else if self.passed {
             let mut approach = self.next;
-            let route = self.approach(&mut approach, b, next, None, &obstacles, self.clock);
+            let route = self.approach(
+                &mut approach,
+                b,
+                next,
+                [after_next, None],
+                &obstacles,
+                self.clock,
+            );
             self.next = approach;
             route
         } else {
             let mut approach = self.current;
-            let route = self.approach(&mut approach, b, target, Some(next), &obstacles, self.clock);
+            let route = self.approach(
+                &mut approach,
+                b,
+                target,
+                [Some(next), after_next],
+                &obstacles,
+                self.clock,
+            );
             self.current = approach;
             route
         };
@@ -672,7 +693,8 @@ impl BaseController {
             && wrap_angle(base.yaw - pass.yaw).abs() <= std::f64::consts::FRAC_PI_4
     }
 
-    /// Updates `approach` toward `target` (then `next`, if known) and returns the route to drive.
+    /// Updates `approach` toward `target` (then the targets `ahead` of it, the next and the one
+    /// after, where known) and returns the route to drive.
     ///
     /// The route is kept between steps and followed (its progress found by projecting the base
     /// onto it); it is planned again, with the choice of pass plan, when there is none, when the
@@ -686,7 +708,7 @@ impl BaseController {
         approach: &mut Approach,
         base: &BasePose,
         target: Vector2<f64>,
-        next: Option<Vector2<f64>>,
+        ahead: [Option<Vector2<f64>>; 2],
         obstacles: &[Vector2<f64>],
         clock: f64,
     ) -> Route {
@@ -747,25 +769,14 @@ impl BaseController {
                         + config.turn_cost * rest.turning()
                         + config.run_in
                         + config.run_out
-                        + self.next_leg(&along(&pass, config.run_out), next, obstacles, radius),
+                        + self.next_leg(&along(&pass, config.run_out), ahead, obstacles, radius),
                 );
             }
         }
-        let base_xy = Vector2::new(base.x, base.y);
-        let mut candidates: Vec<PassPlan> = Vec::with_capacity(2 * config.heading_candidates + 2);
-        for side in [PassSide::Left, PassSide::Right] {
-            if let Some((_, heading)) = tangent_point(base_xy, target, r_c, side) {
-                candidates.push(PassPlan { side, heading });
-            }
-            let n = config.heading_candidates;
-            candidates.extend((0..n).map(|k| PassPlan {
-                side,
-                heading: wrap_angle(k as f64 * std::f64::consts::TAU / n as f64),
-            }));
-        }
+        let candidates = self.candidates(base, target);
         let mut best: Option<(PassPlan, f64)> = None;
         for plan in &candidates {
-            if let Some(cost) = self.score(base, target, next, plan, obstacles, radius)
+            if let Some(cost) = self.score(base, target, ahead, plan, obstacles, radius)
                 && best.is_none_or(|(_, c)| cost < c)
             {
                 best = Some((*plan, cost));
@@ -855,13 +866,14 @@ impl BaseController {
             .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius))
     }
 
-    /// The length of the route past `target` with `plan` and on toward `next`, or `None` when
-    /// the route to ξ_C or its run-in and run-out come within `clearance` of a known target.
+    /// The length of the route past `target` with `plan` and on toward the targets `ahead`, or
+    /// `None` when the route to ξ_C or its run-in and run-out come within `clearance` of a known
+    /// target.
     fn score(
         &self,
         base: &BasePose,
         target: Vector2<f64>,
-        next: Option<Vector2<f64>>,
+        ahead: [Option<Vector2<f64>>; 2],
         plan: &PassPlan,
         obstacles: &[Vector2<f64>],
         radius: f64,
@@ -883,21 +895,81 @@ impl BaseController {
             }
             path.length() + config.turn_cost * path.turning() + straight
         };
-        cost += self.next_leg(&along(&pass, config.run_out), next, obstacles, radius);
+        cost += self.next_leg(&along(&pass, config.run_out), ahead, obstacles, radius);
         Some(cost)
+    }
+
+    /// The pass plans tried for a target at `target` from `from`: on each side, the heading of
+    /// the tangent from `from` to its r_C circle and `heading_candidates` headings evenly round.
+    fn candidates(&self, from: &BasePose, target: Vector2<f64>) -> Vec<PassPlan> {
+        let n = self.config.heading_candidates;
+        let mut candidates = Vec::with_capacity(2 * n + 2);
+        for side in [PassSide::Left, PassSide::Right] {
+            let at = Vector2::new(from.x, from.y);
+            let r_c = self.config.closest_approach_radius;
+            if let Some((_, heading)) = tangent_point(at, target, r_c, side) {
+                candidates.push(PassPlan { side, heading });
+            }
+            candidates.extend((0..n).map(|k| PassPlan {
+                side,
+                heading: wrap_angle(k as f64 * std::f64::consts::TAU / n as f64),
+            }));
+        }
+        candidates
+    }
+
+    /// The cost of the way on from `out` (the end of a run-out) past the targets `ahead`:
+    /// 0 without a next target. With a target after the next, the cheapest pass of the next
+    /// one (its shortest route, turning, run-in and run-out, whose straight keeps clear of the
+    /// known targets) plus the leg from its run-out on to the one after
+    /// ([`BaseController::tangent_leg`]); with the next target only, that leg to it. So the
+    /// pass of each target is chosen for the two after it: a drop chosen without the pick that
+    /// follows it sent the base round the far side of the pick-up row on every lap.
+    fn next_leg(
+        &self,
+        out: &BasePose,
+        ahead: [Option<Vector2<f64>>; 2],
+        obstacles: &[Vector2<f64>],
+        radius: f64,
+    ) -> f64 {
+        let [Some(next), after] = ahead else {
+            return 0.0;
+        };
+        let Some(after) = after else {
+            return self.tangent_leg(out, next, obstacles, radius);
+        };
+        let config = &self.config;
+        let straight = config.run_in + config.run_out;
+        self.candidates(out, next)
+            .iter()
+            .filter_map(|plan| {
+                let start = self.run_in_start(plan, next);
+                if !self.clear_line(&start, straight, obstacles) {
+                    return None;
+                }
+                let path = DubinsPath::shortest(out, &start, radius);
+                let on = along(&start, straight);
+                Some(
+                    path.length()
+                        + config.turn_cost * path.turning()
+                        + straight
+                        + self.tangent_leg(&on, after, obstacles, radius),
+                )
+            })
+            .min_by(f64::total_cmp)
+            .unwrap_or(BLOCKED_NEXT_LEG)
     }
 
     /// Length of the shortest route from `out` (the end of a run-out) to a tangent pose on
     /// `next`'s r_C circle, plus a detour charge if it comes within clearance of a known target;
-    /// 0 without a next target or from inside its circle.
-    fn next_leg(
+    /// 0 from inside its circle.
+    fn tangent_leg(
         &self,
         out: &BasePose,
-        next: Option<Vector2<f64>>,
+        next: Vector2<f64>,
         obstacles: &[Vector2<f64>],
         radius: f64,
     ) -> f64 {
-        let Some(next) = next else { return 0.0 };
         [PassSide::Left, PassSide::Right]
             .into_iter()
             .filter_map(|side| {
@@ -1140,6 +1212,7 @@ mod tests {
                         velocity: target_velocity,
                     },
                     next_target: next,
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1279,6 +1352,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(0.3, 0.2, 0.45)),
                 next_target: Vector3::new(0.0, 3.0, 0.35),
+            after_next: None,
                 // A long step, so that the turn-acceleration limit lets the command through.
                 dt: 1.0,
             })
@@ -1317,6 +1391,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(Vector3::new(3.0, 0.0, 0.45)),
                     next_target: Vector3::new(6.0, jitter, 0.35),
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1343,6 +1418,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(target),
                     next_target: Vector3::new(7.0, 1.0, 0.35),
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1389,6 +1465,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(-3.0, 0.5, 0.45)),
                 next_target: Vector3::new(-6.0, 0.0, 0.35),
+            after_next: None,
                 dt: 1.0,
             })
             .unwrap();
@@ -1410,6 +1487,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(f64::NAN, 0.0, 0.45)),
                 next_target: Vector3::new(6.0, 0.0, 0.35),
+            after_next: None,
                 dt: DT,
             })
             .unwrap_err();
@@ -1432,6 +1510,7 @@ mod tests {
                     base: BasePose::new(0.0, 0.0, 0.0),
                     target: TargetEstimate::fixed(target),
                     next_target: target,
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1459,6 +1538,7 @@ mod tests {
             base,
             target: TargetEstimate::fixed(Vector3::new(3.0, -0.5, 0.45)),
             next_target: Vector3::new(4.0, 3.0, 0.35),
+            after_next: None,
             dt: DT,
         };
         let mut last = 0.0;
@@ -1504,6 +1584,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(target),
                     next_target: next,
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1584,6 +1665,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(targets[task]),
                     next_target: next,
+            after_next: None,
                     dt: DT,
                 })
                 .unwrap();

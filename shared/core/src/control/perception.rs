@@ -440,10 +440,28 @@ impl Perception {
         let hint = input
             .target_hint
             .filter(|_| !tracked && !input.neighbours.is_empty());
+        // Once tracked, the known neighbours are where the mission knows them, moved by the
+        // offset the target's estimate shows from its own known position: a blob nearer one of
+        // them than the target's prior is that neighbour (in a row of cubes the target may
+        // leave the view while the cube beside it, within the gate, stays in it).
+        let offset = input
+            .target_hint
+            .filter(|_| tracked)
+            .map(|h| self.estimate.position - h);
+        let nearest_neighbour = |fix: &Vector3<f64>| {
+            offset.and_then(|offset| {
+                input
+                    .neighbours
+                    .iter()
+                    .map(|n| (fix - (n + offset)).xy().norm())
+                    .reduce(f64::min)
+            })
+        };
         let mut best: Option<(f64, f64, Vector3<f64>)> = None;
         for &(pixels, fix) in &fixes {
             let (explained, score) = match distance(fix) {
                 Some(d) if d > gate => continue,
+                Some(d) if nearest_neighbour(&fix).is_some_and(|n| n < d) => continue,
                 Some(d) => (
                     hint.map_or(0.0, |h| {
                         self.explained(fix - h, &fix, &fixes, input.neighbours)

@@ -602,6 +602,7 @@ mod tests {
                     base,
                     target,
                     next_target: Vector3::new(6.0, 0.0, 0.35),
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();

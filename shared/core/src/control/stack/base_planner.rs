@@ -38,7 +38,8 @@ pub struct BasePlannerOutput {
 #[derive(Debug, Clone)]
 pub struct BasePlannerCycle {
     controller: BaseController,
-    /// The mission's known layout, in the world.
+    /// The mission's known layout, in the world, in task order (the target after the next is
+    /// the one two tasks on).
     layout: Vec<Vector3<f64>>,
     /// The odometry offset the controller's layout was last corrected with.
     layout_offset: [f64; 3],
@@ -83,6 +84,11 @@ impl BasePlannerCycle {
             base: input.base,
             target: input.target,
             next_target: input.mission.next_waypoint,
+            after_next: self
+                .layout
+                .get(task_index + 2)
+                .filter(|_| offset.iter().all(|v| v.is_finite()))
+                .map(|p| world_to_odometry(&offset, p)),
             dt: input.dt,
         }) {
             Ok(plan) => Some(BasePlannerOutput { task_index, plan }),
