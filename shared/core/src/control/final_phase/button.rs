@@ -8,7 +8,8 @@
 //!    no more than `push_speed`, until within `depth_tolerance` of that depth (or after
 //!    `push_timeout`, if the button stops the tool short).
 //! 3. [`Retracting`](FinalPhaseStage::Retracting): back up to the hover pose at no more than
-//!    `push_speed`, until within `hover_tolerance`.
+//!    `push_speed`, until within `hover_tolerance` (or after `retract_timeout`, if the arm
+//!    cannot get there while the base drives on).
 //! 4. [`Done`](FinalPhaseStage::Done): the hover pose is held.
 //!
 //! The gripper stays closed throughout, so the fingertips press as one.
@@ -90,7 +91,9 @@ impl ButtonController {
                     self.enter(FinalPhaseStage::Retracting, input.t);
                 }
             }
-            FinalPhaseStage::Retracting if at_hover => {
+            FinalPhaseStage::Retracting
+                if at_hover || self.clock.elapsed(input.t) >= self.config.retract_timeout =>
+            {
                 self.enter(FinalPhaseStage::Done, input.t);
             }
             _ => {}
@@ -232,6 +235,37 @@ mod tests {
         }
         assert!(retracted);
         assert!(world.t >= config.button.push_timeout);
+    }
+
+    #[test]
+    fn the_task_ends_after_the_retract_timeout_when_the_arm_cannot_reach_the_hover_pose() {
+        let config = FinalPhaseConfig::default();
+        let mut controller = ButtonController::new(config.servo, config.button);
+        let tool = Isometry3::new(
+            BUTTON + Vector3::z() * config.button.hover_height,
+            Vector3::x() * PI,
+        );
+        let mut world = KinematicWorld::new(tool, 0.0, TargetPath::Static(BUTTON), DT);
+        world.graspable = false;
+        let mut retracting_since = None;
+        let mut done_at = None;
+        for _ in 0..2000 {
+            let out = controller.step(&world.input());
+            world.advance(&out);
+            // An arm held back by the base: the tool cannot rise above 2 cm over the cap.
+            let p = &mut world.tool.translation.vector;
+            p.z = p.z.min(BUTTON.z + 0.02);
+            if out.stage == FinalPhaseStage::Retracting && retracting_since.is_none() {
+                retracting_since = Some(world.t);
+            }
+            if out.stage == FinalPhaseStage::Done {
+                done_at = Some(world.t);
+                break;
+            }
+        }
+        let (start, end) = (retracting_since.unwrap(), done_at.unwrap());
+        assert!(end - start >= config.button.retract_timeout - 2.0 * DT);
+        assert!(end - start <= config.button.retract_timeout + 2.0 * DT);
     }
 
     #[test]

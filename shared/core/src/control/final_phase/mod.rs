@@ -587,6 +587,11 @@ pub struct ButtonConfig {
     /// Retract anyway after pushing this long, s, in case the button stops the tool short of
     /// the depth (2.0).
     pub push_timeout: f64,
+    /// Done anyway after retracting this long, s (1.5; the 5 cm back up take 1 s at the push
+    /// speed). As with the grasp's lift, a base driving on from the button can leave the arm
+    /// unable to hold the hover pose within its tolerance; the press has registered by then,
+    /// and a retraction that never ended held the task while the base circled.
+    pub retract_timeout: f64,
 }
 
 impl Default for ButtonConfig {
@@ -598,6 +603,7 @@ impl Default for ButtonConfig {
             depth_tolerance: 0.002,
             push_speed: 0.05,
             push_timeout: 2.0,
+            retract_timeout: 1.5,
         }
     }
 }
@@ -613,6 +619,7 @@ impl ButtonConfig {
                 ("button.depth_tolerance", self.depth_tolerance),
                 ("button.push_speed", self.push_speed),
                 ("button.push_timeout", self.push_timeout),
+                ("button.retract_timeout", self.retract_timeout),
             ],
         )
     }
