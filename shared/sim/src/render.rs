@@ -194,7 +194,7 @@ struct RowRays<'a> {
 
 /// The `LANES` values of `values` from `at` on.
 #[inline]
-fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
+fn lanes<T>(values: &[T], at: usize) -> &[T; LANES] {
     values[at..at + LANES]
         .try_into()
         .expect("rows are padded to whole tiles")
@@ -204,6 +204,37 @@ fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
 struct RowHits {
     depth: [f32; LANES],
     surface: [u32; LANES],
+}
+
+impl RowHits {
+    /// What the rays of a tile row see of the floor plane z = 0, the camera `height` (m) above
+    /// it, `up` the floor's normal in the camera frame: the floor where a ray points down from
+    /// above it, the background elsewhere. Written lane by lane with every quotient computed
+    /// (as [`PreparedBox::hit_row`]), so that it compiles to SIMD.
+    #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
+    fn floor(rays: &RowRays<'_>, up: &[f32; 3], height: f32) -> Self {
+        let mut hits = RowHits {
+            depth: [f32::INFINITY; LANES],
+            surface: [SURFACE_BACKGROUND; LANES],
+        };
+        let above_floor = height > 0.0;
+        for k in 0..LANES {
+            let down = up[0] * rays.x[k] + up[1] * rays.y[k] + up[2] * rays.z[k];
+            let floor = (down < 0.0) & above_floor;
+            let t = -height / down;
+            hits.depth[k] = if floor { t } else { f32::INFINITY };
+            hits.surface[k] = if floor {
+                SURFACE_FLOOR
+            } else {
+                SURFACE_BACKGROUND
+            };
+        }
+        hits
+    }
 }
 
 /// Palette index of the background.
@@ -294,8 +325,11 @@ pub struct Renderer {
     ray_x: Vec<f32>,
     ray_y: Vec<f32>,
     ray_z: Vec<f32>,
-    /// Whether each pixel (row-major, `width` per row) is inside the image circle.
-    inside: Vec<bool>,
+    /// Per pixel, `stride` per row: all ones inside the lens' image circle, zero outside it
+    /// and in the padding (a mask on the pixel's packed colour).
+    inside: Vec<u32>,
+    /// Byte ranges of the image rows of the tiles wholly outside the image circle (always black).
+    blank: Vec<std::ops::Range<usize>>,
     tiles: Vec<Tile>,
     noise: PixelNoise,
     /// Byte ranges of the image inside the image circle (runs of whole pixels within a row).
@@ -341,7 +375,14 @@ impl Renderer {
                 (ray_x[at], ray_y[at], ray_z[at]) = (r.x, r.y, r.z);
             }
         }
+        let mut inside = vec![0; stride * h];
+        for (i, ray) in rays.iter().enumerate() {
+            if ray.is_some() {
+                inside[(i / w) * stride + i % w] = u32::MAX;
+            }
+        }
         let mut tiles = Vec::new();
+        let mut blank = Vec::new();
         for y0 in (0..h).step_by(TILE) {
             for x0 in (0..w).step_by(TILE) {
                 let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
@@ -352,6 +393,7 @@ impl Renderer {
                 };
                 let sum: Vector3<f64> = tile_rays().sum();
                 let Some(axis) = sum.try_normalize(1e-12) else {
+                    blank.extend((y0..y1).map(|y| (y * w + x0) * 3..(y * w + x1) * 3));
                     continue;
                 };
                 let half_angle = tile_rays()
@@ -375,7 +417,8 @@ impl Renderer {
             ray_x,
             ray_y,
             ray_z,
-            inside: rays.iter().map(Option::is_some).collect(),
+            inside,
+            blank,
             tiles,
             noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
             inside_runs,
@@ -466,15 +509,22 @@ impl Renderer {
             w * self.model.height as usize * 3,
             "image size"
         );
-        image.fill(0);
+        for range in &self.blank {
+            image[range.clone()].fill(0);
+        }
         let light = Vector3::new(0.3, -0.2, 1.0).normalize();
         let lit = |colour: [u8; 3], normal: Vector3<f64>| {
             let shade = AMBIENT + (1.0 - AMBIENT) * (normal.dot(&light) as f32).max(0.0);
-            colour.map(|c| (c as f32 * shade).round() as u8)
+            let [r, g, b] = colour.map(|c| (c as f32 * shade).round() as u8);
+            u32::from_le_bytes([r, g, b, 0])
         };
         let camera_from_world = world_from_camera.inverse();
         // Palette: background, floor, then the six lit faces of every box.
-        let mut palette = vec![scene.background, lit(scene.floor_colour, Vector3::z())];
+        let [r, g, b] = scene.background;
+        let mut palette = vec![
+            u32::from_le_bytes([r, g, b, 0]),
+            lit(scene.floor_colour, Vector3::z()),
+        ];
         let boxes: Vec<PreparedBox> = scene
             .boxes
             .iter()
@@ -509,7 +559,7 @@ impl Renderer {
                     .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
             })
             .collect();
-        let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
+        let floor_normal: [f32; 3] = (camera_from_world.rotation * Vector3::z()).cast().into();
         let camera_height = world_from_camera.translation.z as f32;
         let mut candidates = Vec::with_capacity(boxes.len());
         for tile in &self.tiles {
@@ -520,36 +570,20 @@ impl Renderer {
             }));
             for y in tile.y0..tile.y1 {
                 let rays = self.row_rays(tile.x0, y);
-                let mut hits = RowHits {
-                    depth: [f32::INFINITY; LANES],
-                    surface: [SURFACE_BACKGROUND; LANES],
-                };
-                let above_floor = camera_height > 0.0;
-                for k in 0..LANES {
-                    let down = floor_normal.x * rays.x[k]
-                        + floor_normal.y * rays.y[k]
-                        + floor_normal.z * rays.z[k];
-                    // Branch-free, so that the loop compiles to SIMD.
-                    let floor = (down < 0.0) & above_floor;
-                    let t = -camera_height / down;
-                    hits.depth[k] = if floor { t } else { f32::INFINITY };
-                    hits.surface[k] = if floor {
-                        SURFACE_FLOOR
-                    } else {
-                        SURFACE_BACKGROUND
-                    };
-                }
+                let mut hits = RowHits::floor(&rays, &floor_normal, camera_height);
                 for &i in &candidates {
                     boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u32);
                 }
-                for (k, x) in (tile.x0..tile.x1).enumerate() {
-                    let index = y * w + x;
-                    if !self.inside[index] {
-                        continue;
-                    }
-                    image[index * 3..index * 3 + 3]
-                        .copy_from_slice(&palette[hits.surface[k] as usize]);
+                // Every pixel of the tile row, black outside the image circle, packed four
+                // bytes at a time (each overwriting the spare byte of the one before).
+                let inside = lanes(&self.inside, y * self.stride + tile.x0);
+                let mut packed = [0; 4 * LANES];
+                for k in 0..LANES {
+                    let colour = palette[hits.surface[k] as usize] & inside[k];
+                    packed[3 * k..3 * k + 4].copy_from_slice(&colour.to_le_bytes());
                 }
+                let (from, to) = ((y * w + tile.x0) * 3, (y * w + tile.x1) * 3);
+                image[from..to].copy_from_slice(&packed[..to - from]);
             }
         }
         let inside_len = self.inside_runs.iter().map(|run| run.len()).sum();
@@ -608,7 +642,7 @@ pub struct PalmCamera {
     rng: ChaCha8Rng,
     calibration: CameraCalibration,
     next_capture: f64,
-    in_flight: VecDeque<Capture>,
+    in_flight: VecDeque<Exposure>,
 }
 
 impl PalmCamera {
@@ -667,8 +701,36 @@ impl PalmCamera {
         now: f64,
         render: bool,
     ) -> Option<CameraFrame> {
+        let exposure = self
+            .expose(scene, world_from_tool, now)
+            .filter(|_| render)?;
+        Some(self.frame(&exposure))
+    }
+
+    /// `exposure` drawn into a new image ([`PalmCamera::render`]).
+    pub fn frame(&self, exposure: &Exposure) -> CameraFrame {
+        let mut image = vec![0; self.config.width as usize * self.config.height as usize * 3];
+        self.render(exposure, &mut image);
+        CameraFrame {
+            image,
+            width: self.config.width,
+            height: self.config.height,
+            stamp: exposure.stamp,
+        }
+    }
+
+    /// [`PalmCamera::step`] without the rendering: captures what is due at `now` (s) and returns
+    /// the newest capture whose latency has passed, for [`PalmCamera::render`] to draw into a
+    /// buffer of the caller's (a frame nobody reads is then never drawn). The captures, the
+    /// delivery times and the seeded draws are those of [`PalmCamera::step`].
+    pub fn expose(
+        &mut self,
+        scene: &Scene,
+        world_from_tool: &Isometry3<f64>,
+        now: f64,
+    ) -> Option<Exposure> {
         if now >= self.next_capture {
-            self.in_flight.push_back(Capture {
+            self.in_flight.push_back(Exposure {
                 scene: scene.clone(),
                 world_from_camera: world_from_tool * self.config.tool_from_camera.isometry(),
                 noise_seed: self.rng.next_u64(),
@@ -685,28 +747,44 @@ impl PalmCamera {
         {
             ready = self.in_flight.pop_front();
         }
-        let capture = ready.filter(|_| render)?;
-        let image = self.renderer.render(
-            &capture.scene,
-            &capture.world_from_camera,
-            &mut ChaCha8Rng::seed_from_u64(capture.noise_seed),
-        );
-        Some(CameraFrame {
+        ready
+    }
+
+    /// Draws `exposure` into `image` (row-major RGB8, `width × height × 3` bytes, every byte
+    /// written): bit for bit the frame [`PalmCamera::step`] delivers for it.
+    ///
+    /// # Panics
+    /// If `image` has the wrong length.
+    pub fn render(&self, exposure: &Exposure, image: &mut [u8]) {
+        self.renderer.render_into(
+            &exposure.scene,
+            &exposure.world_from_camera,
+            &mut ChaCha8Rng::seed_from_u64(exposure.noise_seed),
             image,
-            width: self.config.width,
-            height: self.config.height,
-            stamp: capture.stamp,
-        })
+        );
+    }
+
+    /// Image width and height, pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.config.width, self.config.height)
     }
 }
 
-/// A frame captured and not yet delivered: what it shows and the seed of its noise.
+/// A frame captured and delivered but not yet drawn ([`PalmCamera::expose`]): the scene and pose
+/// at its exposure and the seed of its noise.
 #[derive(Debug, Clone)]
-struct Capture {
+pub struct Exposure {
     scene: Scene,
     world_from_camera: Isometry3<f64>,
     noise_seed: u64,
     stamp: f64,
+}
+
+impl Exposure {
+    /// Capture (exposure) time, s.
+    pub fn stamp(&self) -> f64 {
+        self.stamp
+    }
 }
 
 /// A direction drawn uniformly on the unit sphere.
