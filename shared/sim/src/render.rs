@@ -209,14 +209,15 @@ struct RowHits {
 impl RowHits {
     /// What the rays of a tile row see of the floor plane z = 0, the camera `height` (m) above
     /// it, `up` the floor's normal in the camera frame: the floor where a ray points down from
-    /// above it, the background elsewhere. Written lane by lane with every quotient computed
-    /// (as [`PreparedBox::hit_row`]), so that it compiles to SIMD.
+    /// above it, the background elsewhere. The depths (the division) only when `DEPTH` (boxes
+    /// to compare them with), infinite otherwise. Written lane by lane with every quotient
+    /// computed (as [`PreparedBox::hit_row`]), so that it compiles to SIMD.
     #[inline(always)]
     #[allow(
         clippy::needless_range_loop,
         reason = "lane loops index several arrays at once, the form that compiles to SIMD"
     )]
-    fn floor(rays: &RowRays<'_>, up: &[f32; 3], height: f32) -> Self {
+    fn floor<const DEPTH: bool>(rays: &RowRays<'_>, up: &[f32; 3], height: f32) -> Self {
         let mut hits = RowHits {
             depth: [f32::INFINITY; LANES],
             surface: [SURFACE_BACKGROUND; LANES],
@@ -225,8 +226,10 @@ impl RowHits {
         for k in 0..LANES {
             let down = up[0] * rays.x[k] + up[1] * rays.y[k] + up[2] * rays.z[k];
             let floor = (down < 0.0) & above_floor;
-            let t = -height / down;
-            hits.depth[k] = if floor { t } else { f32::INFINITY };
+            if DEPTH {
+                let t = -height / down;
+                hits.depth[k] = if floor { t } else { f32::INFINITY };
+            }
             hits.surface[k] = if floor {
                 SURFACE_FLOOR
             } else {
@@ -270,7 +273,7 @@ impl PreparedBox {
     /// Casts the rays of a tile row at the box (slab test), keeping the nearest surface per
     /// pixel: a ray that enters the box in front of the camera, nearer than what the pixel saw
     /// so far, sees the face it enters through (−x, +x, −y, +y, −z, +z are palette entries
-    /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
+    /// `first_face..first_face + 6`); returns what `seen` becomes. Written lane by lane (one loop per step over the whole
     /// row) so that it compiles to SIMD; always inlined, so it is compiled for the target
     /// features of [`Renderer::render_into`]'s version that calls it.
     #[inline(always)]
@@ -278,39 +281,52 @@ impl PreparedBox {
         clippy::needless_range_loop,
         reason = "lane loops index several arrays at once, the form that compiles to SIMD"
     )]
-    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u32) {
-        let m = &self.box_from_camera;
-        let mut near = [f32::NEG_INFINITY; LANES];
-        let mut far = [f32::INFINITY; LANES];
-        let mut face = [0u32; LANES];
+    fn hit_row(&self, rays: &RowRays<'_>, seen: &RowHits, first_face: u32) -> RowHits {
+        // Per axis, the ray parameters where each ray crosses the slab's two planes (ordered)
+        // and the face it would enter through; then, per lane, the latest entry and the
+        // earliest exit, combined in registers. The result goes to new arrays: updating arrays
+        // in place compiles to masked stores, slow on some CPUs.
+        let mut hits = RowHits {
+            depth: [0.0; LANES],
+            surface: [0; LANES],
+        };
+        let mut entry = [[0.0f32; LANES]; 3];
+        let mut exit = [[0.0f32; LANES]; 3];
+        let mut entry_face = [[0u32; LANES]; 3];
         for axis in 0..3 {
             let (low, high) = (self.slab_low[axis], self.slab_high[axis]);
-            let row = m[axis];
+            let row = self.box_from_camera[axis];
             for k in 0..LANES {
                 let d = row[0] * rays.x[k] + row[1] * rays.y[k] + row[2] * rays.z[k];
                 let inv = 1.0 / d;
                 let t1 = low * inv;
                 let t2 = high * inv;
                 let ordered = t1 < t2;
-                let lo = if ordered { t1 } else { t2 };
-                let hi = if ordered { t2 } else { t1 };
-                let enters = lo > near[k];
-                near[k] = if enters { lo } else { near[k] };
-                let entry_face = 2 * axis as u32 + u32::from(d < 0.0);
-                face[k] = if enters { entry_face } else { face[k] };
-                // As f32::min: a NaN `hi` leaves `far` as it is.
-                far[k] = if hi < far[k] { hi } else { far[k] };
+                entry[axis][k] = if ordered { t1 } else { t2 };
+                exit[axis][k] = if ordered { t2 } else { t1 };
+                entry_face[axis][k] = 2 * axis as u32 + u32::from(d < 0.0);
             }
         }
         for k in 0..LANES {
-            let closer = (near[k] <= far[k]) & (near[k] > 0.0) & (near[k] < hits.depth[k]);
-            hits.depth[k] = if closer { near[k] } else { hits.depth[k] };
+            let (mut near, mut far, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0);
+            for axis in 0..3 {
+                let lo = entry[axis][k];
+                let enters = lo > near;
+                near = if enters { lo } else { near };
+                face = if enters { entry_face[axis][k] } else { face };
+                // As f32::min: a NaN exit leaves `far` as it is.
+                let hi = exit[axis][k];
+                far = if hi < far { hi } else { far };
+            }
+            let closer = (near <= far) & (near > 0.0) & (near < seen.depth[k]);
+            hits.depth[k] = if closer { near } else { seen.depth[k] };
             hits.surface[k] = if closer {
-                first_face + face[k]
+                first_face + face
             } else {
-                hits.surface[k]
+                seen.surface[k]
             };
         }
+        hits
     }
 }
 
@@ -570,9 +586,13 @@ impl Renderer {
             }));
             for y in tile.y0..tile.y1 {
                 let rays = self.row_rays(tile.x0, y);
-                let mut hits = RowHits::floor(&rays, &floor_normal, camera_height);
+                let mut hits = if candidates.is_empty() {
+                    RowHits::floor::<false>(&rays, &floor_normal, camera_height)
+                } else {
+                    RowHits::floor::<true>(&rays, &floor_normal, camera_height)
+                };
                 for &i in &candidates {
-                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u32);
+                    hits = boxes[i].hit_row(&rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                 }
                 // Every pixel of the tile row, black outside the image circle, packed four
                 // bytes at a time (each overwriting the spare byte of the one before).
@@ -819,21 +839,21 @@ mod tests {
             y: &y,
             z: &z,
         };
-        let mut hits = RowHits {
+        let nothing = RowHits {
             depth: [f32::INFINITY; LANES],
             surface: [SURFACE_BACKGROUND; LANES],
         };
-        cube.hit_row(&rays, &mut hits, SURFACE_FIRST_BOX);
+        let hits = cube.hit_row(&rays, &nothing, SURFACE_FIRST_BOX);
         assert!((hits.depth[0] - 0.9).abs() < 1e-6);
         assert_eq!(hits.surface[0], SURFACE_FIRST_BOX + 5, "+z face");
         assert_eq!(hits.surface[1], SURFACE_BACKGROUND, "behind");
         assert_eq!(hits.surface[2], SURFACE_BACKGROUND, "beside");
         // A nearer surface already seen hides the cube.
-        let mut nearer = RowHits {
+        let nearer = RowHits {
             depth: [0.5; LANES],
             surface: [SURFACE_FLOOR; LANES],
         };
-        cube.hit_row(&rays, &mut nearer, SURFACE_FIRST_BOX);
+        let nearer = cube.hit_row(&rays, &nearer, SURFACE_FIRST_BOX);
         assert_eq!(nearer.surface[0], SURFACE_FLOOR);
     }
 
