@@ -602,8 +602,12 @@ impl Renderer {
                     let colour = palette[hits.surface[k] as usize] & inside[k];
                     packed[3 * k..3 * k + 4].copy_from_slice(&colour.to_le_bytes());
                 }
-                let (from, to) = ((y * w + tile.x0) * 3, (y * w + tile.x1) * 3);
-                image[from..to].copy_from_slice(&packed[..to - from]);
+                let row = &mut image[(y * w + tile.x0) * 3..(y * w + tile.x1) * 3];
+                match <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
+                    // A whole tile row: a fixed-size copy, inlined.
+                    Ok(whole) => whole.copy_from_slice(&packed[..3 * LANES]),
+                    Err(_) => row.copy_from_slice(&packed[..row.len()]),
+                }
             }
         }
         let inside_len = self.inside_runs.iter().map(|run| run.len()).sum();
