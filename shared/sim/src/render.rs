@@ -145,6 +145,8 @@ struct Tile {
     y0: usize,
     x1: usize,
     y1: usize,
+    /// Index of the tile's first row in [`Renderer::ray_rows`] (its rows follow in order).
+    first_row: usize,
     /// The cone that contains every ray of the tile.
     cone: Cone,
 }
@@ -185,19 +187,15 @@ impl Cone {
 /// Number of pixels handled together in the ray loops: one row of a tile.
 const LANES: usize = TILE;
 
-/// The camera-frame rays of one tile row, one array per coordinate (zero outside the image).
-struct RowRays<'a> {
-    x: &'a [f32; LANES],
-    y: &'a [f32; LANES],
-    z: &'a [f32; LANES],
-}
-
-/// The `LANES` values of `values` from `at` on.
-#[inline]
-fn lanes<T>(values: &[T], at: usize) -> &[T; LANES] {
-    values[at..at + LANES]
-        .try_into()
-        .expect("rows are padded to whole tiles")
+/// The camera-frame unit rays of one tile row, one array per coordinate; zero outside the
+/// lens' image circle and beyond the image's right edge (so a pixel is inside the circle
+/// exactly when its ray is not zero). One cache line per array.
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct RayRow {
+    x: [f32; LANES],
+    y: [f32; LANES],
+    z: [f32; LANES],
 }
 
 /// What each pixel of a tile row sees so far: distance and surface (index into the palette).
@@ -209,7 +207,7 @@ struct RowHits {
 impl RowHits {
     /// What the rays of a tile row see of the floor plane z = 0, the camera `height` (m) above
     /// it, `up` the floor's normal in the camera frame: the floor where a ray points down from
-    /// above it, the background elsewhere. The depths (the division) only when `DEPTH` (boxes
+    /// above it, the background elsewhere, and nothing outside the image circle. The depths (the division) only when `DEPTH` (boxes
     /// to compare them with), infinite otherwise. Written lane by lane with every quotient
     /// computed (as [`PreparedBox::hit_row`]), so that it compiles to SIMD.
     #[inline(always)]
@@ -217,7 +215,7 @@ impl RowHits {
         clippy::needless_range_loop,
         reason = "lane loops index several arrays at once, the form that compiles to SIMD"
     )]
-    fn floor<const DEPTH: bool>(rays: &RowRays<'_>, up: &[f32; 3], height: f32) -> Self {
+    fn floor<const DEPTH: bool>(rays: &RayRow, up: &[f32; 3], height: f32) -> Self {
         let mut hits = RowHits {
             depth: [f32::INFINITY; LANES],
             surface: [SURFACE_BACKGROUND; LANES],
@@ -230,7 +228,11 @@ impl RowHits {
                 let t = -height / down;
                 hits.depth[k] = if floor { t } else { f32::INFINITY };
             }
-            hits.surface[k] = if floor {
+            // A pixel outside the image circle has a zero ray, which no box's slab test hits.
+            let inside = (rays.x[k] != 0.0) | (rays.y[k] != 0.0) | (rays.z[k] != 0.0);
+            hits.surface[k] = if !inside {
+                SURFACE_OUTSIDE
+            } else if floor {
                 SURFACE_FLOOR
             } else {
                 SURFACE_BACKGROUND
@@ -240,12 +242,14 @@ impl RowHits {
     }
 }
 
+/// Palette index of a pixel outside the lens' image circle (black).
+const SURFACE_OUTSIDE: u32 = 0;
 /// Palette index of the background.
-const SURFACE_BACKGROUND: u32 = 0;
+const SURFACE_BACKGROUND: u32 = 1;
 /// Palette index of the floor.
-const SURFACE_FLOOR: u32 = 1;
+const SURFACE_FLOOR: u32 = 2;
 /// Palette index of the first face of the first box (each box has six).
-const SURFACE_FIRST_BOX: u32 = 2;
+const SURFACE_FIRST_BOX: u32 = 3;
 
 /// A box prepared for one frame: its pose relative to the camera in f32.
 #[derive(Debug, Clone, Copy)]
@@ -281,7 +285,7 @@ impl PreparedBox {
         clippy::needless_range_loop,
         reason = "lane loops index several arrays at once, the form that compiles to SIMD"
     )]
-    fn hit_row(&self, rays: &RowRays<'_>, seen: &RowHits, first_face: u32) -> RowHits {
+    fn hit_row(&self, rays: &RayRow, seen: &RowHits, first_face: u32) -> RowHits {
         // Per axis, the ray parameters where each ray crosses the slab's two planes (ordered)
         // and the face it would enter through; then, per lane, the latest entry and the
         // earliest exit, combined in registers. The result goes to new arrays: updating arrays
@@ -334,16 +338,9 @@ impl PreparedBox {
 #[derive(Debug, Clone)]
 pub struct Renderer {
     model: CameraModel,
-    /// Row stride of the ray arrays: the width rounded up to whole tiles.
-    stride: usize,
-    /// Camera-frame unit ray of every pixel, one array per coordinate, `stride` per row; zero
-    /// outside the lens' image circle and in the padding.
-    ray_x: Vec<f32>,
-    ray_y: Vec<f32>,
-    ray_z: Vec<f32>,
-    /// Per pixel, `stride` per row: all ones inside the lens' image circle, zero outside it
-    /// and in the padding (a mask on the pixel's packed colour).
-    inside: Vec<u32>,
+    /// The rays of every row of every tile of [`Renderer::tiles`], tile by tile: read in the
+    /// order they are stored, one frame streams through them once.
+    ray_rows: Vec<RayRow>,
     /// Byte ranges of the image rows of the tiles wholly outside the image circle (always black).
     blank: Vec<std::ops::Range<usize>>,
     tiles: Vec<Tile>,
@@ -371,7 +368,6 @@ impl Renderer {
         rng: &mut R,
     ) -> Self {
         let (w, h) = (model.width as usize, model.height as usize);
-        let stride = w.div_ceil(TILE) * TILE;
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
             .map(|i| {
                 let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
@@ -380,23 +376,7 @@ impl Renderer {
                     .map(|r| r.into_inner().cast::<f32>())
             })
             .collect();
-        let (mut ray_x, mut ray_y, mut ray_z) = (
-            vec![0.0; stride * h],
-            vec![0.0; stride * h],
-            vec![0.0; stride * h],
-        );
-        for (i, ray) in rays.iter().enumerate() {
-            if let Some(r) = ray {
-                let at = (i / w) * stride + i % w;
-                (ray_x[at], ray_y[at], ray_z[at]) = (r.x, r.y, r.z);
-            }
-        }
-        let mut inside = vec![0; stride * h];
-        for (i, ray) in rays.iter().enumerate() {
-            if ray.is_some() {
-                inside[(i / w) * stride + i % w] = u32::MAX;
-            }
-        }
+        let mut ray_rows = Vec::new();
         let mut tiles = Vec::new();
         let mut blank = Vec::new();
         for y0 in (0..h).step_by(TILE) {
@@ -420,20 +400,26 @@ impl Renderer {
                     y0,
                     x1,
                     y1,
+                    first_row: ray_rows.len(),
                     // Margin for f32 rounding of the rays.
                     cone: Cone::new(axis, half_angle + 1e-4),
                 });
+                ray_rows.extend((y0..y1).map(|y| {
+                    let mut row = RayRow::default();
+                    for (k, ray) in rays[y * w + x0..y * w + x1].iter().enumerate() {
+                        if let Some(r) = ray {
+                            (row.x[k], row.y[k], row.z[k]) = (r.x, r.y, r.z);
+                        }
+                    }
+                    row
+                }));
             }
         }
         let inside_runs = inside_runs(&rays, w);
         let inside_len = inside_runs.iter().map(|run| run.len()).sum();
         Self {
             model,
-            stride,
-            ray_x,
-            ray_y,
-            ray_z,
-            inside,
+            ray_rows,
             blank,
             tiles,
             noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
@@ -456,17 +442,6 @@ impl Renderer {
         let mut image = vec![0; self.model.width as usize * self.model.height as usize * 3];
         self.render_into(scene, world_from_camera, rng, &mut image);
         image
-    }
-
-    /// The camera-frame rays of the tile row starting at pixel (`x0`, `y`).
-    #[inline]
-    fn row_rays(&self, x0: usize, y: usize) -> RowRays<'_> {
-        let at = y * self.stride + x0;
-        RowRays {
-            x: lanes(&self.ray_x, at),
-            y: lanes(&self.ray_y, at),
-            z: lanes(&self.ray_z, at),
-        }
     }
 
     /// Renders `scene` seen from `world_from_camera` into `image` (row-major RGB8, exactly
@@ -535,9 +510,11 @@ impl Renderer {
             u32::from_le_bytes([r, g, b, 0])
         };
         let camera_from_world = world_from_camera.inverse();
-        // Palette: background, floor, then the six lit faces of every box.
+        // Palette: black outside the image circle, background, floor, then the six lit faces of
+        // every box.
         let [r, g, b] = scene.background;
         let mut palette = vec![
+            0,
             u32::from_le_bytes([r, g, b, 0]),
             lit(scene.floor_colour, Vector3::z()),
         ];
@@ -584,29 +561,34 @@ impl Renderer {
                 None => Some(i),
                 Some(cone) => tile.may_see(cone).then_some(i),
             }));
-            for y in tile.y0..tile.y1 {
-                let rays = self.row_rays(tile.x0, y);
+            let rows = &self.ray_rows[tile.first_row..tile.first_row + (tile.y1 - tile.y0)];
+            for (y, rays) in (tile.y0..tile.y1).zip(rows) {
                 let mut hits = if candidates.is_empty() {
-                    RowHits::floor::<false>(&rays, &floor_normal, camera_height)
+                    RowHits::floor::<false>(rays, &floor_normal, camera_height)
                 } else {
-                    RowHits::floor::<true>(&rays, &floor_normal, camera_height)
+                    RowHits::floor::<true>(rays, &floor_normal, camera_height)
                 };
                 for &i in &candidates {
-                    hits = boxes[i].hit_row(&rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
+                    hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                 }
-                // Every pixel of the tile row, black outside the image circle, packed four
-                // bytes at a time (each overwriting the spare byte of the one before).
-                let inside = lanes(&self.inside, y * self.stride + tile.x0);
-                let mut packed = [0; 4 * LANES];
+                // Every pixel of the tile row, black outside the image circle.
+                let mut colours = [0u32; LANES];
                 for k in 0..LANES {
-                    let colour = palette[hits.surface[k] as usize] & inside[k];
-                    packed[3 * k..3 * k + 4].copy_from_slice(&colour.to_le_bytes());
+                    colours[k] = palette[hits.surface[k] as usize];
                 }
                 let row = &mut image[(y * w + tile.x0) * 3..(y * w + tile.x1) * 3];
-                match <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
-                    // A whole tile row: a fixed-size copy, inlined.
-                    Ok(whole) => whole.copy_from_slice(&packed[..3 * LANES]),
-                    Err(_) => row.copy_from_slice(&packed[..row.len()]),
+                if let Ok(whole) = <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
+                    // Stored four bytes at a time, each overwriting the spare byte of the one
+                    // before, the last pixel three.
+                    for (k, colour) in colours[..LANES - 1].iter().enumerate() {
+                        whole[3 * k..3 * k + 4].copy_from_slice(&colour.to_le_bytes());
+                    }
+                    let last = colours[LANES - 1].to_le_bytes();
+                    whole[3 * LANES - 3..].copy_from_slice(&last[..3]);
+                } else {
+                    for (pixel, colour) in row.chunks_exact_mut(3).zip(colours) {
+                        pixel.copy_from_slice(&colour.to_le_bytes()[..3]);
+                    }
                 }
             }
         }
@@ -838,11 +820,7 @@ mod tests {
         let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [-1.0f32; LANES]);
         z[1] = 1.0;
         (x[2], y[2], z[2]) = (beside.x, beside.y, beside.z);
-        let rays = RowRays {
-            x: &x,
-            y: &y,
-            z: &z,
-        };
+        let rays = RayRow { x, y, z };
         let nothing = RowHits {
             depth: [f32::INFINITY; LANES],
             surface: [SURFACE_BACKGROUND; LANES],
