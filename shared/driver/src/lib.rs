@@ -1,5 +1,6 @@
 //! Wiring shared by the velocity drivers (`panda-driver`, `ld60-driver`): their common flags
-//! ([`DriverArgs`]) and the stack side of a driver on real hardware ([`hardware`]).
+//! ([`DriverArgs`]), the stack side of a driver on real hardware ([`hardware`]), and the arm
+//! driver's set-up ([`arm`]).
 //!
 //! The driver logic is written once, in `motm_tasks::driver` (`ArmDriverTask`,
 //! `BaseDriverTask`): it reads every command sample, safe-stop and the hardware state, steps a
@@ -24,6 +25,7 @@ use motm_core::command_limiter::{AxisLimits, CommandLimiterConfig};
 use motm_core::velocity_driver::{DriverCounters, VelocityDriver};
 use motm_core::{Robot, resolve_config_dir};
 
+pub mod arm;
 pub mod fci;
 pub mod hardware;
 

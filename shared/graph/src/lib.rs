@@ -15,5 +15,6 @@ pub use motm_msgs::{Topic, TopicSpec, topics};
 pub use scheduler::{CycleRecord, Scheduler};
 pub use spec::*;
 pub use task::{
-    Consumed, PortSet, Sink, Source, Task, TopicVisitor, boxed_copy, boxed_zeroed, consumed,
+    Consumed, PortSet, Sink, Source, Task, TopicVisitor, boxed_zeroed, consumed, shared_copy,
+    shared_zeroed,
 };

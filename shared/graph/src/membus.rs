@@ -16,7 +16,7 @@ use std::sync::Arc;
 use motm_msgs::{Message, Rejection, Topic};
 
 use crate::replay::{RawSample, raw_bytes};
-use crate::task::{Consumed, Sink, Source, boxed_copy, consumed};
+use crate::task::{Consumed, Sink, Source, consumed, shared_copy};
 
 /// Identifies one reader of the bus (a scheduled task).
 pub type ReaderId = usize;
@@ -361,7 +361,7 @@ impl Source for MemPort<'_> {
 
 impl Sink for MemPort<'_> {
     fn publish<T: Message>(&mut self, topic: Topic<T>, message: &T) {
-        self.publish_shared(topic, Arc::from(boxed_copy(message)));
+        self.publish_shared(topic, shared_copy(message));
     }
 
     fn publish_shared<T: Message>(&mut self, topic: Topic<T>, message: Arc<T>) {

@@ -119,22 +119,27 @@ pub fn boxed_zeroed<T: Message>() -> Box<T> {
     message
 }
 
-/// A heap copy of `message` that is never built on the stack (camera images are hundreds of
-/// kilobytes).
-pub fn boxed_copy<T: Message>(message: &T) -> Box<T> {
-    let layout = std::alloc::Layout::new::<T>();
-    if layout.size() == 0 {
-        return Box::new(*message);
-    }
-    // SAFETY: the layout has a non-zero size; all-zero bytes are a valid `T` (the `Message`
-    // contract), and the copy writes exactly one `T` into the fresh allocation.
+/// An all-zero message in a fresh [`Arc`] (so no other owner yet: [`Arc::get_mut`] succeeds),
+/// never built on the stack; a payload written into it is published without another copy.
+pub fn shared_zeroed<T: Message>() -> Arc<T> {
+    // SAFETY: all-zero bytes are a valid `T` (the `Message` contract).
+    let mut message = unsafe { Arc::<T>::new_zeroed().assume_init() };
+    *Arc::get_mut(&mut message)
+        .expect("a fresh Arc has one owner")
+        .header_mut() = motm_msgs::Header::new(0, 0);
+    message
+}
+
+/// A shared copy of `message`, copied once straight into its [`Arc`] and never built on the
+/// stack (camera images are hundreds of kilobytes).
+pub fn shared_copy<T: Message>(message: &T) -> Arc<T> {
+    let mut shared = Arc::<T>::new_uninit();
+    let slot = Arc::get_mut(&mut shared).expect("a fresh Arc has one owner");
+    // SAFETY: the copy writes exactly one `T` into the fresh allocation, which is then
+    // initialised.
     unsafe {
-        let ptr = std::alloc::alloc_zeroed(layout).cast::<T>();
-        if ptr.is_null() {
-            std::alloc::handle_alloc_error(layout);
-        }
-        std::ptr::copy_nonoverlapping(message as *const T, ptr, 1);
-        Box::from_raw(ptr)
+        std::ptr::copy_nonoverlapping(message as *const T, slot.as_mut_ptr(), 1);
+        shared.assume_init()
     }
 }
 

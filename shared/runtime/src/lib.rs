@@ -34,7 +34,7 @@ use motm_bus::{
     Subscriber, Trigger as ReadyTrigger,
 };
 use motm_graph::{
-    Consumed, PortSet, Sink, Source, Task, TaskSpec, TopicVisitor, Trigger, boxed_copy,
+    Consumed, PortSet, Sink, Source, Task, TaskSpec, TopicVisitor, Trigger, shared_copy,
 };
 use motm_msgs::{self as msgs, Message, Topic, topics};
 
@@ -235,7 +235,7 @@ impl Source for BusPorts {
 
     fn latest_shared<T: Message>(&mut self, topic: Topic<T>, slot: &mut Option<Arc<T>>) {
         match self.subscriber(topic).latest() {
-            Ok(Some(sample)) => *slot = Some(Arc::from(boxed_copy(&*sample))),
+            Ok(Some(sample)) => *slot = Some(shared_copy(&*sample)),
             Ok(None) => {}
             Err(e) => self.failed(e),
         }

@@ -1,12 +1,12 @@
 //! Conversions between the simulated world's values and the bus messages.
 
-use crate::render::CameraFrame;
+use crate::render::{Exposure, PalmCamera};
 use crate::sim_world::{SimWorld, TrialStatus};
 use crate::{FailureReason, Outcome, Sensors, Truth};
 use motm_core::{GripperCommand, wrap_angle};
 use motm_msgs::{
-    BaseOdometry, CameraImage, GripperAction, GripperState, JointState, MAX_ARM_JOINTS,
-    MAX_SIM_OBJECTS, Message, SimOutcome, SimTruth,
+    BaseOdometry, CAMERA_IMAGE_BYTES, CameraImage, GripperAction, GripperState, JointState,
+    MAX_ARM_JOINTS, MAX_SIM_OBJECTS, Message, SimOutcome, SimTruth,
 };
 
 /// The arm state the encoders measure.
@@ -46,12 +46,20 @@ pub fn gripper_command(m: &motm_msgs::GripperCommand) -> Option<GripperCommand> 
     }
 }
 
-/// Writes a camera frame into an image message in place.
-pub fn camera_image(frame: &CameraFrame, image: &mut CameraImage) {
-    image.width = frame.width;
-    image.height = frame.height;
-    let n = frame.image.len().min(image.pixels.len());
-    image.pixels[..n].copy_from_slice(&frame.image[..n]);
+/// Draws `exposure` through `camera` into an image message in place: straight into its
+/// pixels when the frame fits (the bytes beyond it are left as they are), through a copy
+/// otherwise (the frame cut to the message).
+pub fn camera_image(camera: &PalmCamera, exposure: &Exposure, image: &mut CameraImage) {
+    let (width, height) = camera.size();
+    image.width = width;
+    image.height = height;
+    let n = width as usize * height as usize * 3;
+    if let Some(pixels) = image.pixels.get_mut(..n) {
+        camera.render(exposure, pixels);
+    } else {
+        let frame = camera.frame(exposure).image;
+        image.pixels.copy_from_slice(&frame[..CAMERA_IMAGE_BYTES]);
+    }
 }
 
 /// The outcome code of a trial status.
@@ -126,14 +134,14 @@ mod tests {
         )
         .unwrap();
         let qd = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1];
-        let mut frame = None;
+        let mut exposure = None;
         for _ in 0..100 {
             let input = HardwareInput {
                 arm: Some((&qd, 0.0)),
                 base: None,
                 gripper: None,
             };
-            frame = sim.step(&input).or(frame);
+            exposure = sim.step_exposing(&input).or(exposure);
         }
         let now = 1_000_000_000;
         let joints = joint_state(sim.sensors());
@@ -149,9 +157,10 @@ mod tests {
         assert_eq!(t.object_placed_time[0], -1.0);
         assert_eq!(t.catch_up_cycles, 2);
         assert!((t.sim_time - 0.1).abs() < 1e-9);
-        let frame = frame.expect("a frame within 100 ms");
+        let exposure = exposure.expect("a frame within 100 ms");
+        let frame = sim.camera().frame(&exposure);
         let mut image = CameraImage::zeroed();
-        camera_image(&frame, &mut image);
+        camera_image(sim.camera(), &exposure, &mut image);
         assert_eq!(image.validate(now, None), Ok(()));
         assert_eq!(&image.pixels[..], &frame.image[..]);
     }

@@ -145,6 +145,8 @@ struct Tile {
     y0: usize,
     x1: usize,
     y1: usize,
+    /// Index of the tile's first row in [`Renderer::ray_rows`] (its rows follow in order).
+    first_row: usize,
     /// The cone that contains every ray of the tile.
     cone: Cone,
 }
@@ -185,19 +187,15 @@ impl Cone {
 /// Number of pixels handled together in the ray loops: one row of a tile.
 const LANES: usize = TILE;
 
-/// The camera-frame rays of one tile row, one array per coordinate (zero outside the image).
-struct RowRays<'a> {
-    x: &'a [f32; LANES],
-    y: &'a [f32; LANES],
-    z: &'a [f32; LANES],
-}
-
-/// The `LANES` values of `values` from `at` on.
-#[inline]
-fn lanes(values: &[f32], at: usize) -> &[f32; LANES] {
-    values[at..at + LANES]
-        .try_into()
-        .expect("rows are padded to whole tiles")
+/// The camera-frame unit rays of one tile row, one array per coordinate; zero outside the
+/// lens' image circle and beyond the image's right edge (so a pixel is inside the circle
+/// exactly when its ray is not zero). One cache line per array.
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+struct RayRow {
+    x: [f32; LANES],
+    y: [f32; LANES],
+    z: [f32; LANES],
 }
 
 /// What each pixel of a tile row sees so far: distance and surface (index into the palette).
@@ -206,12 +204,52 @@ struct RowHits {
     surface: [u32; LANES],
 }
 
+impl RowHits {
+    /// What the rays of a tile row see of the floor plane z = 0, the camera `height` (m) above
+    /// it, `up` the floor's normal in the camera frame: the floor where a ray points down from
+    /// above it, the background elsewhere, and nothing outside the image circle. The depths (the division) only when `DEPTH` (boxes
+    /// to compare them with), infinite otherwise. Written lane by lane with every quotient
+    /// computed (as [`PreparedBox::hit_row`]), so that it compiles to SIMD.
+    #[inline(always)]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "lane loops index several arrays at once, the form that compiles to SIMD"
+    )]
+    fn floor<const DEPTH: bool>(rays: &RayRow, up: &[f32; 3], height: f32) -> Self {
+        let mut hits = RowHits {
+            depth: [f32::INFINITY; LANES],
+            surface: [SURFACE_BACKGROUND; LANES],
+        };
+        let above_floor = height > 0.0;
+        for k in 0..LANES {
+            let down = up[0] * rays.x[k] + up[1] * rays.y[k] + up[2] * rays.z[k];
+            let floor = (down < 0.0) & above_floor;
+            if DEPTH {
+                let t = -height / down;
+                hits.depth[k] = if floor { t } else { f32::INFINITY };
+            }
+            // A pixel outside the image circle has a zero ray, which no box's slab test hits.
+            let inside = (rays.x[k] != 0.0) | (rays.y[k] != 0.0) | (rays.z[k] != 0.0);
+            hits.surface[k] = if !inside {
+                SURFACE_OUTSIDE
+            } else if floor {
+                SURFACE_FLOOR
+            } else {
+                SURFACE_BACKGROUND
+            };
+        }
+        hits
+    }
+}
+
+/// Palette index of a pixel outside the lens' image circle (black).
+const SURFACE_OUTSIDE: u32 = 0;
 /// Palette index of the background.
-const SURFACE_BACKGROUND: u32 = 0;
+const SURFACE_BACKGROUND: u32 = 1;
 /// Palette index of the floor.
-const SURFACE_FLOOR: u32 = 1;
+const SURFACE_FLOOR: u32 = 2;
 /// Palette index of the first face of the first box (each box has six).
-const SURFACE_FIRST_BOX: u32 = 2;
+const SURFACE_FIRST_BOX: u32 = 3;
 
 /// A box prepared for one frame: its pose relative to the camera in f32.
 #[derive(Debug, Clone, Copy)]
@@ -239,7 +277,7 @@ impl PreparedBox {
     /// Casts the rays of a tile row at the box (slab test), keeping the nearest surface per
     /// pixel: a ray that enters the box in front of the camera, nearer than what the pixel saw
     /// so far, sees the face it enters through (−x, +x, −y, +y, −z, +z are palette entries
-    /// `first_face..first_face + 6`). Written lane by lane (one loop per step over the whole
+    /// `first_face..first_face + 6`); returns what `seen` becomes. Written lane by lane (one loop per step over the whole
     /// row) so that it compiles to SIMD; always inlined, so it is compiled for the target
     /// features of [`Renderer::render_into`]'s version that calls it.
     #[inline(always)]
@@ -247,39 +285,52 @@ impl PreparedBox {
         clippy::needless_range_loop,
         reason = "lane loops index several arrays at once, the form that compiles to SIMD"
     )]
-    fn hit_row(&self, rays: &RowRays<'_>, hits: &mut RowHits, first_face: u32) {
-        let m = &self.box_from_camera;
-        let mut near = [f32::NEG_INFINITY; LANES];
-        let mut far = [f32::INFINITY; LANES];
-        let mut face = [0u32; LANES];
+    fn hit_row(&self, rays: &RayRow, seen: &RowHits, first_face: u32) -> RowHits {
+        // Per axis, the ray parameters where each ray crosses the slab's two planes (ordered)
+        // and the face it would enter through; then, per lane, the latest entry and the
+        // earliest exit, combined in registers. The result goes to new arrays: updating arrays
+        // in place compiles to masked stores, slow on some CPUs.
+        let mut hits = RowHits {
+            depth: [0.0; LANES],
+            surface: [0; LANES],
+        };
+        let mut entry = [[0.0f32; LANES]; 3];
+        let mut exit = [[0.0f32; LANES]; 3];
+        let mut entry_face = [[0u32; LANES]; 3];
         for axis in 0..3 {
             let (low, high) = (self.slab_low[axis], self.slab_high[axis]);
-            let row = m[axis];
+            let row = self.box_from_camera[axis];
             for k in 0..LANES {
                 let d = row[0] * rays.x[k] + row[1] * rays.y[k] + row[2] * rays.z[k];
                 let inv = 1.0 / d;
                 let t1 = low * inv;
                 let t2 = high * inv;
                 let ordered = t1 < t2;
-                let lo = if ordered { t1 } else { t2 };
-                let hi = if ordered { t2 } else { t1 };
-                let enters = lo > near[k];
-                near[k] = if enters { lo } else { near[k] };
-                let entry_face = 2 * axis as u32 + u32::from(d < 0.0);
-                face[k] = if enters { entry_face } else { face[k] };
-                // As f32::min: a NaN `hi` leaves `far` as it is.
-                far[k] = if hi < far[k] { hi } else { far[k] };
+                entry[axis][k] = if ordered { t1 } else { t2 };
+                exit[axis][k] = if ordered { t2 } else { t1 };
+                entry_face[axis][k] = 2 * axis as u32 + u32::from(d < 0.0);
             }
         }
         for k in 0..LANES {
-            let closer = (near[k] <= far[k]) & (near[k] > 0.0) & (near[k] < hits.depth[k]);
-            hits.depth[k] = if closer { near[k] } else { hits.depth[k] };
+            let (mut near, mut far, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0);
+            for axis in 0..3 {
+                let lo = entry[axis][k];
+                let enters = lo > near;
+                near = if enters { lo } else { near };
+                face = if enters { entry_face[axis][k] } else { face };
+                // As f32::min: a NaN exit leaves `far` as it is.
+                let hi = exit[axis][k];
+                far = if hi < far { hi } else { far };
+            }
+            let closer = (near <= far) & (near > 0.0) & (near < seen.depth[k]);
+            hits.depth[k] = if closer { near } else { seen.depth[k] };
             hits.surface[k] = if closer {
-                first_face + face[k]
+                first_face + face
             } else {
-                hits.surface[k]
+                seen.surface[k]
             };
         }
+        hits
     }
 }
 
@@ -287,15 +338,11 @@ impl PreparedBox {
 #[derive(Debug, Clone)]
 pub struct Renderer {
     model: CameraModel,
-    /// Row stride of the ray arrays: the width rounded up to whole tiles.
-    stride: usize,
-    /// Camera-frame unit ray of every pixel, one array per coordinate, `stride` per row; zero
-    /// outside the lens' image circle and in the padding.
-    ray_x: Vec<f32>,
-    ray_y: Vec<f32>,
-    ray_z: Vec<f32>,
-    /// Whether each pixel (row-major, `width` per row) is inside the image circle.
-    inside: Vec<bool>,
+    /// The rays of every row of every tile of [`Renderer::tiles`], tile by tile: read in the
+    /// order they are stored, one frame streams through them once.
+    ray_rows: Vec<RayRow>,
+    /// Byte ranges of the image rows of the tiles wholly outside the image circle (always black).
+    blank: Vec<std::ops::Range<usize>>,
     tiles: Vec<Tile>,
     noise: PixelNoise,
     /// Byte ranges of the image inside the image circle (runs of whole pixels within a row).
@@ -321,7 +368,6 @@ impl Renderer {
         rng: &mut R,
     ) -> Self {
         let (w, h) = (model.width as usize, model.height as usize);
-        let stride = w.div_ceil(TILE) * TILE;
         let rays: Vec<Option<Vector3<f32>>> = (0..w * h)
             .map(|i| {
                 let pixel = Vector2::new((i % w) as f64, (i / w) as f64);
@@ -330,18 +376,9 @@ impl Renderer {
                     .map(|r| r.into_inner().cast::<f32>())
             })
             .collect();
-        let (mut ray_x, mut ray_y, mut ray_z) = (
-            vec![0.0; stride * h],
-            vec![0.0; stride * h],
-            vec![0.0; stride * h],
-        );
-        for (i, ray) in rays.iter().enumerate() {
-            if let Some(r) = ray {
-                let at = (i / w) * stride + i % w;
-                (ray_x[at], ray_y[at], ray_z[at]) = (r.x, r.y, r.z);
-            }
-        }
+        let mut ray_rows = Vec::new();
         let mut tiles = Vec::new();
+        let mut blank = Vec::new();
         for y0 in (0..h).step_by(TILE) {
             for x0 in (0..w).step_by(TILE) {
                 let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
@@ -352,6 +389,7 @@ impl Renderer {
                 };
                 let sum: Vector3<f64> = tile_rays().sum();
                 let Some(axis) = sum.try_normalize(1e-12) else {
+                    blank.extend((y0..y1).map(|y| (y * w + x0) * 3..(y * w + x1) * 3));
                     continue;
                 };
                 let half_angle = tile_rays()
@@ -362,20 +400,27 @@ impl Renderer {
                     y0,
                     x1,
                     y1,
+                    first_row: ray_rows.len(),
                     // Margin for f32 rounding of the rays.
                     cone: Cone::new(axis, half_angle + 1e-4),
                 });
+                ray_rows.extend((y0..y1).map(|y| {
+                    let mut row = RayRow::default();
+                    for (k, ray) in rays[y * w + x0..y * w + x1].iter().enumerate() {
+                        if let Some(r) = ray {
+                            (row.x[k], row.y[k], row.z[k]) = (r.x, r.y, r.z);
+                        }
+                    }
+                    row
+                }));
             }
         }
         let inside_runs = inside_runs(&rays, w);
         let inside_len = inside_runs.iter().map(|run| run.len()).sum();
         Self {
             model,
-            stride,
-            ray_x,
-            ray_y,
-            ray_z,
-            inside: rays.iter().map(Option::is_some).collect(),
+            ray_rows,
+            blank,
             tiles,
             noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
             inside_runs,
@@ -397,17 +442,6 @@ impl Renderer {
         let mut image = vec![0; self.model.width as usize * self.model.height as usize * 3];
         self.render_into(scene, world_from_camera, rng, &mut image);
         image
-    }
-
-    /// The camera-frame rays of the tile row starting at pixel (`x0`, `y`).
-    #[inline]
-    fn row_rays(&self, x0: usize, y: usize) -> RowRays<'_> {
-        let at = y * self.stride + x0;
-        RowRays {
-            x: lanes(&self.ray_x, at),
-            y: lanes(&self.ray_y, at),
-            z: lanes(&self.ray_z, at),
-        }
     }
 
     /// Renders `scene` seen from `world_from_camera` into `image` (row-major RGB8, exactly
@@ -466,15 +500,24 @@ impl Renderer {
             w * self.model.height as usize * 3,
             "image size"
         );
-        image.fill(0);
+        for range in &self.blank {
+            image[range.clone()].fill(0);
+        }
         let light = Vector3::new(0.3, -0.2, 1.0).normalize();
         let lit = |colour: [u8; 3], normal: Vector3<f64>| {
             let shade = AMBIENT + (1.0 - AMBIENT) * (normal.dot(&light) as f32).max(0.0);
-            colour.map(|c| (c as f32 * shade).round() as u8)
+            let [r, g, b] = colour.map(|c| (c as f32 * shade).round() as u8);
+            u32::from_le_bytes([r, g, b, 0])
         };
         let camera_from_world = world_from_camera.inverse();
-        // Palette: background, floor, then the six lit faces of every box.
-        let mut palette = vec![scene.background, lit(scene.floor_colour, Vector3::z())];
+        // Palette: black outside the image circle, background, floor, then the six lit faces of
+        // every box.
+        let [r, g, b] = scene.background;
+        let mut palette = vec![
+            0,
+            u32::from_le_bytes([r, g, b, 0]),
+            lit(scene.floor_colour, Vector3::z()),
+        ];
         let boxes: Vec<PreparedBox> = scene
             .boxes
             .iter()
@@ -509,7 +552,7 @@ impl Renderer {
                     .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
             })
             .collect();
-        let floor_normal: Vector3<f32> = (camera_from_world.rotation * Vector3::z()).cast();
+        let floor_normal: [f32; 3] = (camera_from_world.rotation * Vector3::z()).cast().into();
         let camera_height = world_from_camera.translation.z as f32;
         let mut candidates = Vec::with_capacity(boxes.len());
         for tile in &self.tiles {
@@ -518,37 +561,34 @@ impl Renderer {
                 None => Some(i),
                 Some(cone) => tile.may_see(cone).then_some(i),
             }));
-            for y in tile.y0..tile.y1 {
-                let rays = self.row_rays(tile.x0, y);
-                let mut hits = RowHits {
-                    depth: [f32::INFINITY; LANES],
-                    surface: [SURFACE_BACKGROUND; LANES],
+            let rows = &self.ray_rows[tile.first_row..tile.first_row + (tile.y1 - tile.y0)];
+            for (y, rays) in (tile.y0..tile.y1).zip(rows) {
+                let mut hits = if candidates.is_empty() {
+                    RowHits::floor::<false>(rays, &floor_normal, camera_height)
+                } else {
+                    RowHits::floor::<true>(rays, &floor_normal, camera_height)
                 };
-                let above_floor = camera_height > 0.0;
-                for k in 0..LANES {
-                    let down = floor_normal.x * rays.x[k]
-                        + floor_normal.y * rays.y[k]
-                        + floor_normal.z * rays.z[k];
-                    // Branch-free, so that the loop compiles to SIMD.
-                    let floor = (down < 0.0) & above_floor;
-                    let t = -camera_height / down;
-                    hits.depth[k] = if floor { t } else { f32::INFINITY };
-                    hits.surface[k] = if floor {
-                        SURFACE_FLOOR
-                    } else {
-                        SURFACE_BACKGROUND
-                    };
-                }
                 for &i in &candidates {
-                    boxes[i].hit_row(&rays, &mut hits, SURFACE_FIRST_BOX + 6 * i as u32);
+                    hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                 }
-                for (k, x) in (tile.x0..tile.x1).enumerate() {
-                    let index = y * w + x;
-                    if !self.inside[index] {
-                        continue;
+                // Every pixel of the tile row, black outside the image circle.
+                let mut colours = [0u32; LANES];
+                for k in 0..LANES {
+                    colours[k] = palette[hits.surface[k] as usize];
+                }
+                let row = &mut image[(y * w + tile.x0) * 3..(y * w + tile.x1) * 3];
+                if let Ok(whole) = <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
+                    // Stored four bytes at a time, each overwriting the spare byte of the one
+                    // before, the last pixel three.
+                    for (k, colour) in colours[..LANES - 1].iter().enumerate() {
+                        whole[3 * k..3 * k + 4].copy_from_slice(&colour.to_le_bytes());
                     }
-                    image[index * 3..index * 3 + 3]
-                        .copy_from_slice(&palette[hits.surface[k] as usize]);
+                    let last = colours[LANES - 1].to_le_bytes();
+                    whole[3 * LANES - 3..].copy_from_slice(&last[..3]);
+                } else {
+                    for (pixel, colour) in row.chunks_exact_mut(3).zip(colours) {
+                        pixel.copy_from_slice(&colour.to_le_bytes()[..3]);
+                    }
                 }
             }
         }
@@ -608,7 +648,7 @@ pub struct PalmCamera {
     rng: ChaCha8Rng,
     calibration: CameraCalibration,
     next_capture: f64,
-    in_flight: VecDeque<Capture>,
+    in_flight: VecDeque<Exposure>,
 }
 
 impl PalmCamera {
@@ -667,8 +707,36 @@ impl PalmCamera {
         now: f64,
         render: bool,
     ) -> Option<CameraFrame> {
+        let exposure = self
+            .expose(scene, world_from_tool, now)
+            .filter(|_| render)?;
+        Some(self.frame(&exposure))
+    }
+
+    /// `exposure` drawn into a new image ([`PalmCamera::render`]).
+    pub fn frame(&self, exposure: &Exposure) -> CameraFrame {
+        let mut image = vec![0; self.config.width as usize * self.config.height as usize * 3];
+        self.render(exposure, &mut image);
+        CameraFrame {
+            image,
+            width: self.config.width,
+            height: self.config.height,
+            stamp: exposure.stamp,
+        }
+    }
+
+    /// [`PalmCamera::step`] without the rendering: captures what is due at `now` (s) and returns
+    /// the newest capture whose latency has passed, for [`PalmCamera::render`] to draw into a
+    /// buffer of the caller's (a frame nobody reads is then never drawn). The captures, the
+    /// delivery times and the seeded draws are those of [`PalmCamera::step`].
+    pub fn expose(
+        &mut self,
+        scene: &Scene,
+        world_from_tool: &Isometry3<f64>,
+        now: f64,
+    ) -> Option<Exposure> {
         if now >= self.next_capture {
-            self.in_flight.push_back(Capture {
+            self.in_flight.push_back(Exposure {
                 scene: scene.clone(),
                 world_from_camera: world_from_tool * self.config.tool_from_camera.isometry(),
                 noise_seed: self.rng.next_u64(),
@@ -685,28 +753,44 @@ impl PalmCamera {
         {
             ready = self.in_flight.pop_front();
         }
-        let capture = ready.filter(|_| render)?;
-        let image = self.renderer.render(
-            &capture.scene,
-            &capture.world_from_camera,
-            &mut ChaCha8Rng::seed_from_u64(capture.noise_seed),
-        );
-        Some(CameraFrame {
+        ready
+    }
+
+    /// Draws `exposure` into `image` (row-major RGB8, `width × height × 3` bytes, every byte
+    /// written): bit for bit the frame [`PalmCamera::step`] delivers for it.
+    ///
+    /// # Panics
+    /// If `image` has the wrong length.
+    pub fn render(&self, exposure: &Exposure, image: &mut [u8]) {
+        self.renderer.render_into(
+            &exposure.scene,
+            &exposure.world_from_camera,
+            &mut ChaCha8Rng::seed_from_u64(exposure.noise_seed),
             image,
-            width: self.config.width,
-            height: self.config.height,
-            stamp: capture.stamp,
-        })
+        );
+    }
+
+    /// Image width and height, pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.config.width, self.config.height)
     }
 }
 
-/// A frame captured and not yet delivered: what it shows and the seed of its noise.
+/// A frame captured and delivered but not yet drawn ([`PalmCamera::expose`]): the scene and pose
+/// at its exposure and the seed of its noise.
 #[derive(Debug, Clone)]
-struct Capture {
+pub struct Exposure {
     scene: Scene,
     world_from_camera: Isometry3<f64>,
     noise_seed: u64,
     stamp: f64,
+}
+
+impl Exposure {
+    /// Capture (exposure) time, s.
+    pub fn stamp(&self) -> f64 {
+        self.stamp
+    }
 }
 
 /// A direction drawn uniformly on the unit sphere.
@@ -736,26 +820,22 @@ mod tests {
         let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [-1.0f32; LANES]);
         z[1] = 1.0;
         (x[2], y[2], z[2]) = (beside.x, beside.y, beside.z);
-        let rays = RowRays {
-            x: &x,
-            y: &y,
-            z: &z,
-        };
-        let mut hits = RowHits {
+        let rays = RayRow { x, y, z };
+        let nothing = RowHits {
             depth: [f32::INFINITY; LANES],
             surface: [SURFACE_BACKGROUND; LANES],
         };
-        cube.hit_row(&rays, &mut hits, SURFACE_FIRST_BOX);
+        let hits = cube.hit_row(&rays, &nothing, SURFACE_FIRST_BOX);
         assert!((hits.depth[0] - 0.9).abs() < 1e-6);
         assert_eq!(hits.surface[0], SURFACE_FIRST_BOX + 5, "+z face");
         assert_eq!(hits.surface[1], SURFACE_BACKGROUND, "behind");
         assert_eq!(hits.surface[2], SURFACE_BACKGROUND, "beside");
         // A nearer surface already seen hides the cube.
-        let mut nearer = RowHits {
+        let nearer = RowHits {
             depth: [0.5; LANES],
             surface: [SURFACE_FLOOR; LANES],
         };
-        cube.hit_row(&rays, &mut nearer, SURFACE_FIRST_BOX);
+        let nearer = cube.hit_row(&rays, &nearer, SURFACE_FIRST_BOX);
         assert_eq!(nearer.surface[0], SURFACE_FLOOR);
     }
 

@@ -14,7 +14,7 @@ use motm_core::command_limiter::{AxisLimits, CommandLimiter, CommandLimiterConfi
 use motm_core::{BASE_JOINTS, BaseVelocity, GripperCommand, ModelError, Robot};
 
 use crate::metrics::AccelerationMeter;
-use crate::render::{CameraFrame, PalmCamera, Scene};
+use crate::render::{CameraFrame, Exposure, PalmCamera, Scene};
 use crate::runner::{RunnerConfig, SceneBuilder};
 use crate::scenario::Scenario;
 use crate::world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World};
@@ -198,17 +198,14 @@ impl SimWorld {
     /// Advances one physics period under the newest commands; returns the camera frame that
     /// became available, if any.
     pub fn step(&mut self, input: &HardwareInput) -> Option<CameraFrame> {
-        self.step_rendering(input, true)
+        let exposure = self.step_exposing(input)?;
+        Some(self.camera.frame(&exposure))
     }
 
-    /// [`SimWorld::step`], rendering the camera frame due for delivery only when
-    /// `render_frame` is true (see [`PalmCamera::step_rendering`]): the world, the captures and
-    /// every rendered frame are the same either way.
-    pub fn step_rendering(
-        &mut self,
-        input: &HardwareInput,
-        render_frame: bool,
-    ) -> Option<CameraFrame> {
+    /// [`SimWorld::step`] without drawing the frame that became available: it is returned as an
+    /// [`Exposure`] for [`PalmCamera::render`] to draw into a buffer of the caller's, or to
+    /// drop unseen. The world, the captures and every drawn frame are the same either way.
+    pub fn step_exposing(&mut self, input: &HardwareInput) -> Option<Exposure> {
         let arm_dof = self.command.arm_qd.len();
         let timeout = self.config.command_timeout;
         match input.arm {
@@ -244,10 +241,9 @@ impl SimWorld {
         // The scene is only built when a frame is captured.
         let frame = if self.camera.next_capture() <= now {
             let scene = self.scenes.scene(&self.world);
-            self.camera.step_rendering(&scene, &tool, now, render_frame)
+            self.camera.expose(&scene, &tool, now)
         } else {
-            self.camera
-                .step_rendering(&self.no_scene, &tool, now, render_frame)
+            self.camera.expose(&self.no_scene, &tool, now)
         };
         if self.steps.is_multiple_of(self.steps_per_metric) {
             self.meter.push(tool.translation.vector);

@@ -10,7 +10,7 @@
 use std::sync::Arc;
 
 use motm_core::BaseVelocity;
-use motm_graph::{Task, boxed_zeroed, ports};
+use motm_graph::{Task, ports, shared_zeroed};
 use motm_msgs::{self as msgs, topics};
 
 use motm_tasks::convert::stamped;
@@ -133,24 +133,27 @@ impl Task for SimWorldTask {
         if steps > 1 {
             self.catch_up_cycles += 1;
         }
-        let mut frame = None;
+        // Only the newest frame delivered in this cycle is drawn, straight into the message.
+        let mut exposure = None;
         for _ in 0..steps {
-            if let Some(f) = self.sim.step_rendering(&input, self.render) {
-                frame = Some(f);
+            if let Some(e) = self.sim.step_exposing(&input) {
+                exposure = Some(e);
             }
         }
         // Steps beyond the catch-up limit are dropped: the simulation falls behind.
         self.steps_done += due;
         let sensors = self.sim.sensors();
-        let image = frame.map(|frame| {
+        let image = exposure.filter(|_| self.render).map(|exposure| {
             // The frame's age in simulated time, mapped onto the monotonic clock.
-            let stamp = now_ns.saturating_sub(((self.sim.truth().time - frame.stamp) * 1e9) as u64);
-            let mut image = boxed_zeroed::<msgs::CameraImage>();
-            messages::camera_image(&frame, &mut image);
+            let age = ((self.sim.truth().time - exposure.stamp()) * 1e9) as u64;
+            let stamp = now_ns.saturating_sub(age);
+            let mut shared = shared_zeroed::<msgs::CameraImage>();
+            let image = Arc::get_mut(&mut shared).expect("a fresh message has one owner");
+            messages::camera_image(self.sim.camera(), &exposure, image);
             image.header.stamp_ns = stamp.max(1);
             // `image_published_ns` stays 0: the publisher fills in when the frame is sent, the
-            // start of the frame-to-command latency (after the render and the copy).
-            Arc::from(image)
+            // start of the frame-to-command latency (after the render).
+            shared
         });
         let status = self.sim.status();
         let truth = (self.cycle.is_multiple_of(self.truth_every) || status != self.last_status)
