@@ -1212,7 +1212,7 @@ mod tests {
                         velocity: target_velocity,
                     },
                     next_target: next,
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1352,7 +1352,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(0.3, 0.2, 0.45)),
                 next_target: Vector3::new(0.0, 3.0, 0.35),
-            after_next: None,
+                after_next: None,
                 // A long step, so that the turn-acceleration limit lets the command through.
                 dt: 1.0,
             })
@@ -1391,7 +1391,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(Vector3::new(3.0, 0.0, 0.45)),
                     next_target: Vector3::new(6.0, jitter, 0.35),
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1418,7 +1418,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(target),
                     next_target: Vector3::new(7.0, 1.0, 0.35),
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1465,7 +1465,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(-3.0, 0.5, 0.45)),
                 next_target: Vector3::new(-6.0, 0.0, 0.35),
-            after_next: None,
+                after_next: None,
                 dt: 1.0,
             })
             .unwrap();
@@ -1487,7 +1487,7 @@ mod tests {
                 base: BasePose::new(0.0, 0.0, 0.0),
                 target: TargetEstimate::fixed(Vector3::new(f64::NAN, 0.0, 0.45)),
                 next_target: Vector3::new(6.0, 0.0, 0.35),
-            after_next: None,
+                after_next: None,
                 dt: DT,
             })
             .unwrap_err();
@@ -1510,7 +1510,7 @@ mod tests {
                     base: BasePose::new(0.0, 0.0, 0.0),
                     target: TargetEstimate::fixed(target),
                     next_target: target,
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1584,7 +1584,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(target),
                     next_target: next,
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
@@ -1665,7 +1665,7 @@ mod tests {
                     base,
                     target: TargetEstimate::fixed(targets[task]),
                     next_target: next,
-            after_next: None,
+                    after_next: None,
                     dt: DT,
                 })
                 .unwrap();
