@@ -139,6 +139,9 @@ pub struct BaseControllerConfig {
     /// still not done (a late reach, a lift, a drop or a press), so that the arm finishes near
     /// the target instead of being carried away from it.
     pub linger_speed_fraction: f64,
+    /// While lingering, the base slows in proportion to how far the target is behind the arm's
+    /// base (along the heading), to a stop this far behind it, m (0 turns it off).
+    pub linger_stop_distance: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -164,6 +167,7 @@ impl Default for BaseControllerConfig {
             yaw_acceleration_fraction: 1.0,
             yaw_acceleration_per_speed: 6.0,
             linger_speed_fraction: 0.5,
+            linger_stop_distance: 0.4,
         }
     }
 }
@@ -225,6 +229,10 @@ impl BaseControllerConfig {
             (
                 "linger_speed_fraction",
                 self.linger_speed_fraction > 0.0 && self.linger_speed_fraction <= 1.0,
+            ),
+            (
+                "linger_stop_distance",
+                non_negative(self.linger_stop_distance),
             ),
         ];
         for (key, ok) in checks {
@@ -582,7 +590,19 @@ impl BaseController {
                 u > 0.0 && u <= self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
             });
         let speed = if past_pass {
-            self.speed() * self.config.linger_speed_fraction
+            // The reactive way: the farther the target falls behind the arm's base, the slower
+            // the base, down to a stop `linger_stop_distance` behind it. A drop or a lift that
+            // began late, with the target already behind, otherwise swung the arm's first joint
+            // into its limit damper and the base carried the tool away from the container.
+            let arm_base = Vector2::new(b.x, b.y) + Rotation2::new(b.yaw) * self.model.arm_base;
+            let behind = -(target - arm_base).dot(&heading);
+            let stop = self.config.linger_stop_distance;
+            let scale = if stop > 0.0 {
+                (1.0 - behind / stop).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            self.speed() * self.config.linger_speed_fraction * scale
         } else {
             self.speed()
         };
@@ -1257,8 +1277,18 @@ mod tests {
     }
 
     /// The default configuration (one element, so the tests can loop over variants).
+    /// The default config, except that the base does not stop behind a passed target: the
+    /// tasks of these drives never finish (there is no arm), and the stop is tested on its own
+    /// (`a_pending_target_falling_behind_slows_the_base_to_a_stop`).
+    fn drive_past_config() -> BaseControllerConfig {
+        BaseControllerConfig {
+            linger_stop_distance: 0.0,
+            ..BaseControllerConfig::default()
+        }
+    }
+
     fn configs() -> [BaseControllerConfig; 1] {
-        [BaseControllerConfig::default()]
+        [drive_past_config()]
     }
 
     #[test]
@@ -1341,6 +1371,36 @@ mod tests {
                 assert_passes(&pass, side);
             }
         }
+    }
+
+    #[test]
+    fn a_pending_target_falling_behind_slows_the_base_to_a_stop() {
+        let config = BaseControllerConfig::default();
+        let model = frankie_like();
+        // The base heads along +x; the target is 0.5 m to its left (within r_C: passed),
+        // `behind` m behind the arm's base.
+        let speed_with_target_behind = |behind: f64| {
+            let mut controller = BaseController::new(config.clone(), model);
+            let target = Vector3::new(model.arm_base.x - behind, 0.5, 0.45);
+            controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base: BasePose::new(0.0, 0.0, 0.0),
+                    target: TargetEstimate::fixed(target),
+                    next_target: Vector3::new(6.0, 0.0, 0.35),
+                    after_next: None,
+                    dt: 0.005,
+                })
+                .unwrap()
+                .command
+                .v
+        };
+        let linger = config.forward_speed * config.linger_speed_fraction;
+        let stop = config.linger_stop_distance;
+        assert!((speed_with_target_behind(0.0) - linger).abs() < 1e-9);
+        let half = speed_with_target_behind(0.5 * stop);
+        assert!((half - 0.5 * linger).abs() < 1e-9, "{half}");
+        assert_eq!(speed_with_target_behind(stop + 0.1), 0.0);
     }
 
     #[test]
@@ -1570,7 +1630,7 @@ mod tests {
         // Experiment 2's container: approached from the west with the next target (the next
         // cube) back west, slightly north. The base must pass on one side and turn round the
         // far side, never crossing the target's front.
-        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let mut controller = BaseController::new(drive_past_config(), frankie_like());
         let target = Vector3::new(3.0, 0.0, 0.35);
         let next = Vector3::new(0.0, 0.42, 0.45);
         let mut base = BasePose::new(0.6, -0.3, 0.0);

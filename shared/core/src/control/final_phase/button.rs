@@ -211,16 +211,22 @@ mod tests {
         );
     }
 
-    #[test]
-    fn retracts_after_the_timeout_when_the_button_blocks_the_tool() {
+    /// A button controller with the default config and a world with the tool at its hover pose.
+    fn at_the_hover_pose() -> (FinalPhaseConfig, ButtonController, KinematicWorld) {
         let config = FinalPhaseConfig::default();
-        let mut controller = ButtonController::new(config.servo, config.button);
+        let controller = ButtonController::new(config.servo, config.button);
         let tool = Isometry3::new(
             BUTTON + Vector3::z() * config.button.hover_height,
             Vector3::x() * PI,
         );
         let mut world = KinematicWorld::new(tool, 0.0, TargetPath::Static(BUTTON), DT);
         world.graspable = false;
+        (config, controller, world)
+    }
+
+    #[test]
+    fn retracts_after_the_timeout_when_the_button_blocks_the_tool() {
+        let (config, mut controller, mut world) = at_the_hover_pose();
         let mut retracted = false;
         for _ in 0..400 {
             let out = controller.step(&world.input());
@@ -239,14 +245,7 @@ mod tests {
 
     #[test]
     fn the_task_ends_after_the_retract_timeout_when_the_arm_cannot_reach_the_hover_pose() {
-        let config = FinalPhaseConfig::default();
-        let mut controller = ButtonController::new(config.servo, config.button);
-        let tool = Isometry3::new(
-            BUTTON + Vector3::z() * config.button.hover_height,
-            Vector3::x() * PI,
-        );
-        let mut world = KinematicWorld::new(tool, 0.0, TargetPath::Static(BUTTON), DT);
-        world.graspable = false;
+        let (config, mut controller, mut world) = at_the_hover_pose();
         let mut retracting_since = None;
         let mut done_at = None;
         for _ in 0..2000 {
