@@ -308,6 +308,11 @@ pub struct BaseModel {
 }
 
 impl BaseModel {
+    /// Where the arm base (first arm joint) is, horizontally, with the base at `pose`.
+    pub fn arm_base_at(&self, pose: &BasePose) -> Vector2<f64> {
+        Vector2::new(pose.x, pose.y) + Rotation2::new(pose.yaw) * self.arm_base
+    }
+
     /// Reads the properties from a robot model: the manipulation range from its configuration,
     /// the arm base from its chain, and the v and ω limits from its two virtual base joints.
     pub fn from_robot(robot: &Robot) -> Self {
@@ -454,6 +459,15 @@ impl KeptRoute {
     }
 }
 
+/// The targets after the one being passed (the next and the one after, where known), with
+/// what [`BaseController::look_ahead`] works out once per choice of pass plan.
+struct Ahead {
+    targets: [Option<Vector2<f64>>; 2],
+    /// Per fixed-heading pass plan of the next target: the start of its run-in and the leg on
+    /// from its run-out (`None`: its straight is blocked). Empty without a target after it.
+    fixed: Vec<Option<(BasePose, f64)>>,
+}
+
 /// What the controller drives along this step.
 enum Route {
     /// A kept route (the Dubins path to the start of the run-in, then straight on along it)
@@ -594,8 +608,7 @@ impl BaseController {
             // the base, down to a stop `linger_stop_distance` behind it. A drop or a lift that
             // began late, with the target already behind, otherwise swung the arm's first joint
             // into its limit damper and the base carried the tool away from the container.
-            let arm_base = Vector2::new(b.x, b.y) + Rotation2::new(b.yaw) * self.model.arm_base;
-            let behind = -(target - arm_base).dot(&heading);
+            let behind = -(target - self.model.arm_base_at(b)).dot(&heading);
             let stop = self.config.linger_stop_distance;
             let scale = if stop > 0.0 {
                 (1.0 - behind / stop).clamp(0.0, 1.0)
@@ -747,6 +760,9 @@ impl BaseController {
             }
         }
         let radius = self.turn_radius();
+        // Worked out only when plans are scored, not on the steps that follow the kept route.
+        let look_ahead = std::cell::OnceCell::new();
+        let ahead = || look_ahead.get_or_init(|| self.look_ahead(ahead, obstacles, radius));
         // Follow the kept route while it is valid.
         let mut kept_cost = None;
         if let (Some(route), Some(plan)) = (&mut approach.route, approach.plan) {
@@ -789,14 +805,14 @@ impl BaseController {
                         + config.turn_cost * rest.turning()
                         + config.run_in
                         + config.run_out
-                        + self.next_leg(&along(&pass, config.run_out), ahead, obstacles, radius),
+                        + self.next_leg(&along(&pass, config.run_out), ahead(), obstacles, radius),
                 );
             }
         }
         let candidates = self.candidates(base, target);
         let mut best: Option<(PassPlan, f64)> = None;
         for plan in &candidates {
-            if let Some(cost) = self.score(base, target, ahead, plan, obstacles, radius)
+            if let Some(cost) = self.score(base, target, ahead(), plan, obstacles, radius)
                 && best.is_none_or(|(_, c)| cost < c)
             {
                 best = Some((*plan, cost));
@@ -893,7 +909,7 @@ impl BaseController {
         &self,
         base: &BasePose,
         target: Vector2<f64>,
-        ahead: [Option<Vector2<f64>>; 2],
+        ahead: &Ahead,
         plan: &PassPlan,
         obstacles: &[Vector2<f64>],
         radius: f64,
@@ -920,22 +936,84 @@ impl BaseController {
     }
 
     /// The pass plans tried for a target at `target` from `from`: on each side, the heading of
-    /// the tangent from `from` to its r_C circle and `heading_candidates` headings evenly round.
+    /// the tangent from `from` to its r_C circle ([`BaseController::tangent_plan`]) and the
+    /// fixed headings ([`BaseController::fixed_plans`]).
     fn candidates(&self, from: &BasePose, target: Vector2<f64>) -> Vec<PassPlan> {
-        let n = self.config.heading_candidates;
-        let mut candidates = Vec::with_capacity(2 * n + 2);
+        let mut candidates = Vec::with_capacity(2 * self.config.heading_candidates + 2);
         for side in [PassSide::Left, PassSide::Right] {
-            let at = Vector2::new(from.x, from.y);
-            let r_c = self.config.closest_approach_radius;
-            if let Some((_, heading)) = tangent_point(at, target, r_c, side) {
-                candidates.push(PassPlan { side, heading });
-            }
-            candidates.extend((0..n).map(|k| PassPlan {
-                side,
-                heading: wrap_angle(k as f64 * std::f64::consts::TAU / n as f64),
-            }));
+            candidates.extend(self.tangent_plan(from, target, side));
+            candidates.extend(self.fixed_plans(side));
         }
         candidates
+    }
+
+    /// The pass plan on `side` whose heading is the tangent from `from` to `target`'s r_C
+    /// circle (none from inside it).
+    fn tangent_plan(
+        &self,
+        from: &BasePose,
+        target: Vector2<f64>,
+        side: PassSide,
+    ) -> Option<PassPlan> {
+        let at = Vector2::new(from.x, from.y);
+        tangent_point(at, target, self.config.closest_approach_radius, side)
+            .map(|(_, heading)| PassPlan { side, heading })
+    }
+
+    /// The pass plans on `side` at `heading_candidates` headings evenly round the circle: the
+    /// same from wherever the base comes.
+    fn fixed_plans(&self, side: PassSide) -> impl Iterator<Item = PassPlan> {
+        let n = self.config.heading_candidates;
+        (0..n).map(move |k| PassPlan {
+            side,
+            heading: wrap_angle(k as f64 * std::f64::consts::TAU / n as f64),
+        })
+    }
+
+    /// The targets `ahead` of the one being passed, with the part of the way on past the next
+    /// one that does not depend on where the base comes from, worked out once per choice of
+    /// pass plan: for each of the next target's fixed-heading plans, the start of its run-in
+    /// and the leg from its run-out on to the target after ([`BaseController::tangent_leg`]),
+    /// or `None` where its straight is blocked. The choice scores some 34 plans, each against
+    /// every pass of the next target; the legs on (footprint clearance checks along every
+    /// Dubins word) made a step of the base planner take up to 120 ms on Exp 2.
+    fn look_ahead(
+        &self,
+        ahead: [Option<Vector2<f64>>; 2],
+        obstacles: &[Vector2<f64>],
+        radius: f64,
+    ) -> Ahead {
+        let fixed = match ahead {
+            [Some(next), Some(after)] => [PassSide::Left, PassSide::Right]
+                .into_iter()
+                .flat_map(|side| self.fixed_plans(side))
+                .map(|plan| self.pass_on(&plan, next, after, obstacles, radius))
+                .collect(),
+            _ => Vec::new(),
+        };
+        Ahead {
+            targets: ahead,
+            fixed,
+        }
+    }
+
+    /// For `plan` past `next`: the start of its run-in and the leg from the end of its run-out
+    /// on to `after`, or `None` when its straight comes within clearance of a known target.
+    fn pass_on(
+        &self,
+        plan: &PassPlan,
+        next: Vector2<f64>,
+        after: Vector2<f64>,
+        obstacles: &[Vector2<f64>],
+        radius: f64,
+    ) -> Option<(BasePose, f64)> {
+        let straight = self.config.run_in + self.config.run_out;
+        let start = self.run_in_start(plan, next);
+        if !self.clear_line(&start, straight, obstacles) {
+            return None;
+        }
+        let on = along(&start, straight);
+        Some((start, self.tangent_leg(&on, after, obstacles, radius)))
     }
 
     /// The cost of the way on from `out` (the end of a run-out) past the targets `ahead`:
@@ -948,11 +1026,11 @@ impl BaseController {
     fn next_leg(
         &self,
         out: &BasePose,
-        ahead: [Option<Vector2<f64>>; 2],
+        ahead: &Ahead,
         obstacles: &[Vector2<f64>],
         radius: f64,
     ) -> f64 {
-        let [Some(next), after] = ahead else {
+        let [Some(next), after] = ahead.targets else {
             return 0.0;
         };
         let Some(after) = after else {
@@ -960,21 +1038,16 @@ impl BaseController {
         };
         let config = &self.config;
         let straight = config.run_in + config.run_out;
-        self.candidates(out, next)
-            .iter()
-            .filter_map(|plan| {
-                let start = self.run_in_start(plan, next);
-                if !self.clear_line(&start, straight, obstacles) {
-                    return None;
-                }
+        let tangents = [PassSide::Left, PassSide::Right]
+            .into_iter()
+            .filter_map(|side| self.tangent_plan(out, next, side))
+            .map(|plan| self.pass_on(&plan, next, after, obstacles, radius));
+        tangents
+            .chain(ahead.fixed.iter().copied())
+            .flatten()
+            .map(|(start, on)| {
                 let path = DubinsPath::shortest(out, &start, radius);
-                let on = along(&start, straight);
-                Some(
-                    path.length()
-                        + config.turn_cost * path.turning()
-                        + straight
-                        + self.tangent_leg(&on, after, obstacles, radius),
-                )
+                path.length() + config.turn_cost * path.turning() + straight + on
             })
             .min_by(f64::total_cmp)
             .unwrap_or(BLOCKED_NEXT_LEG)
@@ -1108,9 +1181,6 @@ impl BaseController {
         let speed = speed.max(1e-3);
         let target_xy = xy(&target.position);
         let target_velocity = xy(&target.velocity);
-        let arm_base_at = |pose: &BasePose| {
-            Vector2::new(pose.x, pose.y) + Rotation2::new(pose.yaw) * self.model.arm_base
-        };
         // On the run-in the base follows the line through ξ_C, which moves with the target: it
         // drives along the line and moves with the target's motion across it.
         let across = |pass: &BasePose| {
@@ -1141,7 +1211,8 @@ impl BaseController {
         let mut pose = *base;
         let mut closest = (f64::INFINITY, 0.0, *base);
         for _ in 0..10_000 {
-            let distance = (arm_base_at(&pose) - (target_xy + target_velocity * t)).norm();
+            let distance =
+                (self.model.arm_base_at(&pose) - (target_xy + target_velocity * t)).norm();
             if distance <= range {
                 return (t, pose);
             }
@@ -1276,7 +1347,6 @@ mod tests {
         }
     }
 
-    /// The default configuration (one element, so the tests can loop over variants).
     /// The default config, except that the base does not stop behind a passed target: the
     /// tasks of these drives never finish (there is no arm), and the stop is tested on its own
     /// (`a_pending_target_falling_behind_slows_the_base_to_a_stop`).
@@ -1287,6 +1357,8 @@ mod tests {
         }
     }
 
+    /// The configurations the drives run with (one element, so the tests can loop over
+    /// variants).
     fn configs() -> [BaseControllerConfig; 1] {
         [drive_past_config()]
     }
