@@ -58,12 +58,7 @@ pub fn run_base_driver(flags: &BaseDriverArgs) -> ExitCode {
 fn run(cli: &BaseDriverArgs) -> Result<ExitCode, (u8, String)> {
     let args = &cli.driver;
     let bad = |e: String| (EXIT_BAD_INPUT, e);
-    args.apply_priority(LD60_DRIVER.name).map_err(bad)?;
-    let robot = args.load_robot().map_err(bad)?;
-    let period = args
-        .period(LD60_DRIVER.rate.hz(args.control_rate))
-        .map_err(bad)?;
-    let driver = args.driver(base_axes(&robot), period).map_err(bad)?;
+    let (_, driver, period) = args.prepare(&LD60_DRIVER, base_axes).map_err(bad)?;
     let status_every = args.status_every(period);
     let failed = |e: motm_bus::BusError| (EXIT_FAILED, e.to_string());
     if args.backend == Backend::Sim {

@@ -29,12 +29,10 @@ pub fn run_arm_driver(flags: &ArmDriverArgs) -> ExitCode {
     let args = &flags.driver;
     let bad = |e: String| (EXIT_BAD_INPUT, e);
     let setup = args
-        .apply_priority(PANDA_DRIVER.name)
-        .and_then(|()| args.load_robot())
-        .and_then(|robot| {
-            let period = args.period(PANDA_DRIVER.rate.hz(args.control_rate))?;
+        .prepare(&PANDA_DRIVER, arm_axes)
+        .and_then(|(robot, driver, period)| {
             Ok((
-                args.driver(arm_axes(&robot), period)?,
+                driver,
                 BaseBraking::of(&robot),
                 period,
                 args.connect_wait()?,

@@ -172,6 +172,21 @@ impl DriverArgs {
         )
     }
 
+    /// What either driver sets up first, in this order: `--nice` and `--fifo` for its graph row
+    /// `spec`, the robot model, the period (`--rate`, else the row's rate) and the driver logic
+    /// for the axes `axes` reads off the robot. An error names the flag or file at fault.
+    pub fn prepare(
+        &self,
+        spec: &motm_graph::TaskSpec,
+        axes: impl FnOnce(&Robot) -> Vec<AxisLimits>,
+    ) -> Result<(Robot, VelocityDriver, Duration), String> {
+        self.apply_priority(spec.name)?;
+        let robot = self.load_robot()?;
+        let period = self.period(spec.rate.hz(self.control_rate))?;
+        let driver = self.driver(axes(&robot), period)?;
+        Ok((robot, driver, period))
+    }
+
     /// Applies `--nice` and `--fifo` to this process; a refusal (no CAP_SYS_NICE) is printed,
     /// not fatal.
     pub fn apply_priority(&self, process: &str) -> Result<(), String> {

@@ -102,19 +102,9 @@ pub fn consumed<T: Message>(topic: Topic<T>, message: &T) -> Consumed {
 /// An all-zero message on the heap, never built on the stack (camera images are hundreds of
 /// kilobytes).
 pub fn boxed_zeroed<T: Message>() -> Box<T> {
-    let layout = std::alloc::Layout::new::<T>();
-    if layout.size() == 0 {
-        return Box::new(T::zeroed());
-    }
-    // SAFETY: the layout has a non-zero size and all-zero bytes are a valid `T` (the `Message`
-    // contract); the header is then set as `Message::zeroed` sets it.
-    let mut message = unsafe {
-        let ptr = std::alloc::alloc_zeroed(layout).cast::<T>();
-        if ptr.is_null() {
-            std::alloc::handle_alloc_error(layout);
-        }
-        Box::from_raw(ptr)
-    };
+    // SAFETY: all-zero bytes are a valid `T` (the `Message` contract); the header is then set
+    // as `Message::zeroed` sets it.
+    let mut message = unsafe { Box::<T>::new_zeroed().assume_init() };
     *message.header_mut() = motm_msgs::Header::new(0, 0);
     message
 }
