@@ -112,6 +112,8 @@ impl ToJson for msgs::BasePlan {
             "range_entry_pose": self.range_entry_pose,
             "task_index": self.task_index,
             "passed": self.passed,
+            "missed_passes": self.missed_passes,
+            "gave_up": self.gave_up,
         })
     }
 }

@@ -297,6 +297,7 @@ fn failure_name(outcome: SimOutcome) -> Option<&'static str> {
         SimOutcome::DroppedOutside => Some("dropped_outside"),
         SimOutcome::BaseCollision => Some("base_collision"),
         SimOutcome::Timeout => Some("timeout"),
+        SimOutcome::TaskFailed => Some("task_failed"),
     }
 }
 

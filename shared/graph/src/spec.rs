@@ -103,6 +103,7 @@ pub const SIM_WORLD: TaskSpec = TaskSpec {
         t::HW_ARM_COMMAND.spec(),
         t::HW_BASE_COMMAND.spec(),
         t::HW_GRIPPER_COMMAND.spec(),
+        t::MISSION_STATE.spec(),
     ],
     outputs: &[
         t::HW_ARM_STATE.spec(),
@@ -301,6 +302,7 @@ pub const MISSION: TaskSpec = TaskSpec {
         t::PERCEPTION_TARGET.spec(),
         t::CONTROL_FINAL_TWIST.spec(),
         t::CONTROL_ACTIVE_CONTROLLER.spec(),
+        t::BASE_PLAN.spec(),
     ],
     outputs: &[t::MISSION_STATE.spec()],
     rate: Rate::Control,

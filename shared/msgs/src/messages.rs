@@ -454,6 +454,12 @@ pub struct BasePlan {
     pub task_index: u32,
     /// 1 once the base has gone by the target (latched until the task changes), 0 before.
     pub passed: u32,
+    /// Passes of the target the base has missed (the task still not done well past it) and
+    /// come around for.
+    pub missed_passes: u32,
+    /// 1 once the base has given the target up (its reactive approach missed too): the
+    /// mission reports the task failed and goes on.
+    pub gave_up: u32,
 }
 
 message!(BasePlan, |m, c| {
@@ -487,7 +493,8 @@ message!(BasePlan, |m, c| {
         -core::f64::consts::PI,
         core::f64::consts::PI,
     )?;
-    flag(c, "passed", m.passed).map(|_| ())
+    flag(c, "passed", m.passed)?;
+    flag(c, "gave_up", m.gave_up).map(|_| ())
 });
 
 /// One palm-camera frame, RGB8, row-major, written in place in shared memory.
@@ -697,8 +704,9 @@ pub struct MissionState {
     pub next_target: [f64; 3],
     /// 1 when `next_target` holds a target, 0 otherwise.
     pub has_next: u32,
-    /// Explicit padding; always zero.
-    pub reserved: u32,
+    /// Tasks the mission has given up so far (their target could not be reached on any
+    /// approach; a pick's place goes with it), at most `task_count`.
+    pub failed_tasks: u32,
     /// The odometry frame against the world, as the mission estimates it from landmark fixes:
     /// a world point `p` is at `R(yaw)·p + (x, y)` in odometry, `[x, y, yaw]` (m, rad). The
     /// targets above are already in odometry; this is for the rest of the known layout.
@@ -726,7 +734,17 @@ message!(MissionState, |m, c| {
     )?;
     c.all_within("next_target", &m.next_target, envelope::WORLD_POSITION)?;
     flag(c, "has_next", m.has_next)?;
-    padding(c, m.reserved)?;
+    if m.failed_tasks > m.task_count {
+        return Err(c.reject(
+            "failed_tasks",
+            None,
+            RejectReason::OutOfRange {
+                value: f64::from(m.failed_tasks),
+                min: 0.0,
+                max: f64::from(m.task_count),
+            },
+        ));
+    }
     c.all_within(
         "odometry_offset",
         &m.odometry_offset[..2],
@@ -929,6 +947,8 @@ code_enum!(
         BaseCollision = 5,
         /// Failure: the trial ran past its time limit.
         Timeout = 6,
+        /// Failure: the mission gave a task up and ended with the job not done.
+        TaskFailed = 7,
     }
 );
 

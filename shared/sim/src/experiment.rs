@@ -155,8 +155,9 @@ pub struct TrialLog {
 /// The last columns are MotM's internals (zero for the baselines): `phase` (0 reach, 1 final,
 /// 2 complete), `stage` (the final-phase stage, −1 outside the final phase, else 0 approach,
 /// 1 closing, 2 lifting, 3 releasing, 4 pushing, 5 retracting, 6 done), the world twist asked
-/// of the QP, the tool-to-target distance and the first arm joint's position.
-pub const CYCLE_COLUMNS: [&str; 30] = [
+/// of the QP, the tool-to-target distance, the first arm joint's position, and the mission's
+/// estimate of the odometry frame in the world (`[x, y, yaw]`, `MissionState.odometry_offset`).
+pub const CYCLE_COLUMNS: [&str; 33] = [
     "t",
     "task",
     "base_x",
@@ -187,6 +188,9 @@ pub const CYCLE_COLUMNS: [&str; 30] = [
     "qp_slack",
     "base_target_v",
     "arm_q1",
+    "odom_offset_x",
+    "odom_offset_y",
+    "odom_offset_yaw",
 ];
 
 /// One row of a results table: the trials of one method, speed, robot and object motion.

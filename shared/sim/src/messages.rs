@@ -73,6 +73,7 @@ pub fn outcome(status: TrialStatus) -> SimOutcome {
             FailureReason::MissedGrasp => SimOutcome::MissedGrasp,
             FailureReason::DroppedOutside => SimOutcome::DroppedOutside,
             FailureReason::BaseCollision => SimOutcome::BaseCollision,
+            FailureReason::TaskFailed => SimOutcome::TaskFailed,
         },
     }
 }

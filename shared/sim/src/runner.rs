@@ -181,7 +181,7 @@ impl SceneBuilder {
 }
 
 /// Number of MotM internal columns at the end of a trace row.
-const MOTM_COLUMNS: usize = 9;
+const MOTM_COLUMNS: usize = 12;
 
 /// MotM's internals for the trace, from what the tasks published and hold: phase, stage, the
 /// resolved twist (linear), tool-to-target distance, slack, the base controller's speed target
@@ -208,6 +208,7 @@ fn motm_internals(taps: &Taps, scheduler: &Scheduler, arm_q: &[f64]) -> [f64; MO
             FinalPhaseStage::Done => 6.0,
         });
     let twist = taps.qp.map_or([0.0; 6], |q| q.twist);
+    let offset = taps.mission.map_or([0.0; 3], |m| m.odometry_offset);
     let tool_to_target = scheduler
         .task::<MissionSequencerTask>(motm_graph::MISSION.name)
         .and_then(MissionSequencerTask::last)
@@ -222,6 +223,9 @@ fn motm_internals(taps: &Taps, scheduler: &Scheduler, arm_q: &[f64]) -> [f64; MO
         taps.qp.map_or(0.0, |q| q.slack_norm),
         taps.base_target.map_or(0.0, |b| b.v),
         arm_q.first().copied().unwrap_or(0.0),
+        offset[0],
+        offset[1],
+        offset[2],
     ]
 }
 

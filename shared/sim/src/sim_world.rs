@@ -177,6 +177,12 @@ impl SimWorld {
         self.status
     }
 
+    /// The mission ended having given a task up: the trial fails with `task_failed` at the
+    /// next step (unless it is already decided).
+    pub fn mission_gave_up(&mut self) {
+        self.world.mission_gave_up();
+    }
+
     /// Simulation time when the trial was decided (the current time while it runs), s.
     pub fn task_time(&self) -> f64 {
         match self.status {

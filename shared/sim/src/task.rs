@@ -27,6 +27,8 @@ ports! {
         latest base: msgs::BaseVelocityCommand = topics::HW_BASE_COMMAND,
         /// The arm driver's gripper command.
         latest gripper: msgs::GripperCommand = topics::HW_GRIPPER_COMMAND,
+        /// The mission: once it is complete with a task given up, the trial has failed.
+        latest mission: msgs::MissionState = topics::MISSION_STATE,
     }
 }
 
@@ -108,6 +110,11 @@ impl Task for SimWorldTask {
 
     fn step(&mut self, now_ns: u64, inputs: &SimWorldInputs) -> SimWorldOutputs {
         let origin = *self.origin_ns.get_or_insert(now_ns);
+        if inputs.mission.as_ref().is_some_and(|m| {
+            m.failed_tasks > 0 && msgs::TaskPhase::try_from(m.phase) == Ok(msgs::TaskPhase::Complete)
+        }) {
+            self.sim.mission_gave_up();
+        }
         self.arm_qd.clear();
         let arm = inputs.arm.as_ref().map(|c| {
             self.arm_qd

@@ -164,17 +164,21 @@ pub enum FailureReason {
     DroppedOutside,
     /// The base drove into a platform or a container.
     BaseCollision,
+    /// The mission gave a task up (its target was not reached on any approach) and ended
+    /// without every object placed and every button pressed.
+    TaskFailed,
 }
 
 impl FailureReason {
     /// The reason as reported in trial results: `knocked_off`, `missed_grasp`,
-    /// `dropped_outside` or `base_collision`.
+    /// `dropped_outside`, `base_collision` or `task_failed`.
     pub fn as_str(&self) -> &'static str {
         match self {
             Self::KnockedOff => "knocked_off",
             Self::MissedGrasp => "missed_grasp",
             Self::DroppedOutside => "dropped_outside",
             Self::BaseCollision => "base_collision",
+            Self::TaskFailed => "task_failed",
         }
     }
 }
@@ -382,6 +386,12 @@ impl World {
     /// How the trial ended, or `None` while it is still running. The first failure sticks.
     pub fn outcome(&self) -> Option<Outcome> {
         self.outcome
+    }
+
+    /// The mission ended having given a task up: the trial fails with
+    /// [`FailureReason::TaskFailed`] (unless it is already decided).
+    pub fn mission_gave_up(&mut self) {
+        self.fail(FailureReason::TaskFailed);
     }
 
     /// Number of commands dropped because they had the wrong length or a non-finite value.

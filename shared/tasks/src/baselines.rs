@@ -76,6 +76,7 @@ fn mission_state(tasks: &[MissionTask], index: usize, now_ns: u64) -> msgs::Miss
         next_target: task.and_then(|_| tasks.get(index + 1).map(|t| t.position)),
         odometry_offset: [0.0; 3],
         tool_to_target: f64::INFINITY,
+        failed_tasks: 0,
         changed: false,
     };
     convert::stamped(convert::mission_state(&out), now_ns)

@@ -39,6 +39,7 @@ pub fn mission_state(out: &MissionTrackerOutput) -> msgs::MissionState {
         m.has_next = 1;
     }
     m.odometry_offset = out.odometry_offset;
+    m.failed_tasks = out.failed_tasks as u32;
     m
 }
 
@@ -160,6 +161,8 @@ pub fn plan_message(out: &BasePlannerOutput) -> msgs::BasePlan {
     m.range_entry_pose = pose_array(&out.plan.range_entry_pose);
     m.task_index = out.task_index as u32;
     m.passed = u32::from(out.plan.passed);
+    m.missed_passes = out.plan.missed_passes;
+    m.gave_up = u32::from(out.plan.gave_up);
     m
 }
 

@@ -33,6 +33,8 @@ ports! {
         queue final_twists: msgs::TwistCommand = topics::CONTROL_FINAL_TWIST,
         /// The active final-phase controller (any, until a hot swap names one).
         latest active: msgs::ActiveController = topics::CONTROL_ACTIVE_CONTROLLER,
+        /// The base planner's plan: whether it gave the current task's target up.
+        latest plan: msgs::BasePlan = topics::BASE_PLAN,
     }
 }
 
@@ -126,6 +128,9 @@ impl Task for MissionSequencerTask {
                     estimate: Some(selected.target),
                     fix_stamp_ns: selected.image_stamp_ns,
                     final_progress,
+                    gave_up: inputs.plan.as_ref().is_some_and(|p| {
+                        p.gave_up == 1 && p.task_index as usize == view.task_index
+                    }),
                 })
             }
             _ => self.tracker.output(f64::INFINITY, false),

@@ -142,6 +142,18 @@ pub struct BaseControllerConfig {
     /// While lingering, the base slows in proportion to how far the target is behind the arm's
     /// base (along the heading), to a stop this far behind it, m (0 turns it off).
     pub linger_stop_distance: f64,
+    /// A pass is missed when the base has been past ξ_C this long with the task still not done,
+    /// s (0 turns it off): the base comes around for another approach
+    /// ([`BaseController::missed_passes`]). 8 s: a grasp and its lift, a drop or a press take
+    /// 1–3 s from ξ_C on, and a late reach is over, one way or the other, well before.
+    pub pass_timeout: f64,
+    /// Passes made on the move before the base does the task the reactive way: on the next
+    /// approach it slows to a stop with the target abeam of the arm's base, and waits there
+    /// until the task is done (or `pass_timeout` runs out again).
+    pub moving_passes: u32,
+    /// On a reactive approach the base slows in proportion to the distance, along its heading,
+    /// from the arm's base to the target, from v_F this far out to a stop abeam of it, m.
+    pub reactive_slow_distance: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -168,6 +180,9 @@ impl Default for BaseControllerConfig {
             yaw_acceleration_per_speed: 6.0,
             linger_speed_fraction: 0.5,
             linger_stop_distance: 0.4,
+            pass_timeout: 8.0,
+            moving_passes: 2,
+            reactive_slow_distance: 0.6,
         }
     }
 }
@@ -234,6 +249,11 @@ impl BaseControllerConfig {
                 "linger_stop_distance",
                 non_negative(self.linger_stop_distance),
             ),
+            ("pass_timeout", non_negative(self.pass_timeout)),
+            (
+                "reactive_slow_distance",
+                positive(self.reactive_slow_distance),
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -242,8 +262,9 @@ impl BaseControllerConfig {
                     format!("base.{key}"),
                     "out of range (need forward_speed, closest_approach_radius, min_turn_radius, \
                      look_ahead, replan_deviation, replan_period, route_refresh_distance, run_in_tolerance, \
-                     yaw_acceleration_fraction, yaw_acceleration_per_speed > 0; run_in, run_out, \
-                     turn_cost, replan_margin, commit_distance, obstacle_radius, clearance, pass_margin ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
+                     yaw_acceleration_fraction, yaw_acceleration_per_speed, reactive_slow_distance > 0; \
+                     run_in, run_out, turn_cost, replan_margin, commit_distance, obstacle_radius, \
+                     clearance, pass_margin, linger_stop_distance, pass_timeout ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
         }
@@ -286,8 +307,13 @@ pub struct BaseControllerOutput {
     pub time_to_range: f64,
     /// Predicted base pose at `time_to_range` (the current pose when that is zero).
     pub range_entry_pose: BasePose,
-    /// True once the base has gone by the target (latched until the task changes).
+    /// True once the base has gone by the target (latched until the task changes, or until
+    /// the pass is missed).
     pub passed: bool,
+    /// Passes of the current target missed so far ([`BaseController::missed_passes`]).
+    pub missed_passes: u32,
+    /// The base has given up the current target ([`BaseController::gave_up`]).
+    pub gave_up: bool,
 }
 
 /// The robot properties the base controller needs, taken from the model.
@@ -370,6 +396,10 @@ fn line_offset(base: &BasePose, pose: &BasePose) -> (f64, f64) {
 /// on one and two radii before turning (away from a platform just passed, past a container
 /// just dropped into).
 const LEADS: [f64; 3] = [0.0, 1.0, 2.0];
+
+/// While every route is blocked, a route point within this bearing of the heading (rad) counts
+/// as straight ahead, through what blocks the way (see `BaseController::step`).
+const BLOCKED_STRAIGHT_AHEAD: f64 = 0.2;
 
 /// Spacing of the points at which a route is checked against the known targets, m.
 const CLEARANCE_STEP: f64 = 0.1;
@@ -493,6 +523,16 @@ pub struct BaseController {
     last_omega: f64,
     /// Sum of the steps' `dt`, s.
     clock: f64,
+    /// Passes of the current target missed so far.
+    missed: u32,
+    /// Time spent past the current target's ξ_C (or, on a reactive approach, within its slow
+    /// zone) with its task not done, s.
+    lingered: f64,
+    /// After a missed pass: the passed latch waits for a fresh approach (the base on the run-in
+    /// well before ξ_C).
+    rearm: bool,
+    /// While every route is blocked: the direction the base turns on the spot (+1 left).
+    blocked_turn: Option<f64>,
 }
 
 impl BaseController {
@@ -509,6 +549,10 @@ impl BaseController {
             closest_approach: BasePose::default(),
             last_omega: 0.0,
             clock: 0.0,
+            missed: 0,
+            lingered: 0.0,
+            rearm: false,
+            blocked_turn: None,
         }
     }
 
@@ -570,6 +614,12 @@ impl BaseController {
             self.next = Approach::default();
             self.task_index = Some(input.task_index);
             self.passed = false;
+            self.missed = 0;
+            self.lingered = 0.0;
+            self.rearm = false;
+        }
+        if self.config.pass_timeout > 0.0 && self.lingered > self.config.pass_timeout {
+            self.miss_pass();
         }
 
         let base_xy = Vector2::new(b.x, b.y);
@@ -579,7 +629,7 @@ impl BaseController {
         let to_target = target - base_xy;
         let heading = Vector2::new(b.yaw.cos(), b.yaw.sin());
         let r_c = self.config.closest_approach_radius;
-        if !self.passed {
+        if !self.passed && !self.rearm {
             let d = to_target.norm();
             let abeam_or_behind = to_target.dot(&heading) <= 0.0;
             self.passed = d <= r_c || (abeam_or_behind && d < r_c + self.config.pass_margin);
@@ -599,7 +649,7 @@ impl BaseController {
         // Past ξ_C means on its line beyond it: being anywhere ahead of ξ_C's heading (a
         // container passed heading north, seen from a pick-up place north of it) is not.
         let past_pass = self.passed
-            || current_pass.is_some_and(|pass| {
+            || !self.rearm && current_pass.is_some_and(|pass| {
                 let (u, e) = line_offset(b, &pass);
                 u > 0.0 && u <= self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
             });
@@ -646,6 +696,33 @@ impl BaseController {
             self.current = approach;
             route
         };
+        if self.rearm && self.current.committed {
+            self.rearm = false;
+        }
+        // The reactive way, after `moving_passes` missed passes: on the run-in and the run-out
+        // of the target, the base slows to a stop with the target abeam of the arm's base.
+        // The speed is that of a constant deceleration to the stop, so the stop is reached.
+        let reactive_line = self.missed >= self.config.moving_passes
+            && !self.gave_up()
+            && matches!(route, Route::Line(_))
+            && (!self.passed || on_run_out);
+        let (speed, waiting) = if reactive_line {
+            let ahead = (target - self.model.arm_base_at(b)).dot(&heading);
+            let slow = self.config.reactive_slow_distance;
+            (
+                self.speed() * (ahead / slow).clamp(0.0, 1.0).sqrt(),
+                past_pass || ahead <= slow,
+            )
+        } else if self.gave_up() {
+            (self.speed(), false)
+        } else {
+            (speed, past_pass)
+        };
+        self.lingered = if waiting {
+            self.lingered + input.dt.max(0.0)
+        } else {
+            0.0
+        };
         let (pass, point) = match &route {
             Route::Line(pass) => {
                 // The point the base reaches in look_ahead/v, where the line (moving with the
@@ -681,13 +758,39 @@ impl BaseController {
         } else {
             &self.current
         };
+        // The direction of the turn is kept while the block lasts: a route point straight
+        // ahead, through what blocks the way, would otherwise leave the base facing it for
+        // good; then it turns away from the nearest known target.
         let blocked = driving.blocked && !matches!(route, Route::Line(_));
         let (speed, wanted_omega) = if blocked {
             let offset = point - Vector2::new(b.x, b.y);
             let bearing = wrap_angle(offset.y.atan2(offset.x) - b.yaw);
             let limit = 0.5 * self.model.max_yaw_rate;
-            (0.0, (2.0 * bearing).clamp(-limit, limit))
+            let turn = *self.blocked_turn.get_or_insert_with(|| {
+                if bearing.abs() > BLOCKED_STRAIGHT_AHEAD {
+                    bearing.signum()
+                } else {
+                    let nearest = obstacles.iter().min_by(|p, q| {
+                        (*p - base_xy).norm().total_cmp(&(*q - base_xy).norm())
+                    });
+                    nearest.map_or(1.0, |o| {
+                        let away = o - base_xy;
+                        if wrap_angle(away.y.atan2(away.x) - b.yaw) > 0.0 {
+                            -1.0
+                        } else {
+                            1.0
+                        }
+                    })
+                }
+            });
+            let wanted = if bearing.abs() > BLOCKED_STRAIGHT_AHEAD && bearing.signum() == turn {
+                (2.0 * bearing).clamp(-limit, limit)
+            } else {
+                turn * limit
+            };
+            (0.0, wanted)
         } else {
+            self.blocked_turn = None;
             (speed, pursue(b, point, speed))
         };
 
@@ -713,7 +816,41 @@ impl BaseController {
             time_to_range,
             range_entry_pose,
             passed: self.passed,
+            missed_passes: self.missed,
+            gave_up: self.gave_up(),
         })
+    }
+
+    /// Whether the base has given up the current target: the reactive approach missed too
+    /// (more than `moving_passes` passes missed). The base then drives on to the next target
+    /// at v_F, and the mission is to report the task failed and go on.
+    pub fn gave_up(&self) -> bool {
+        self.config.pass_timeout > 0.0 && self.missed > self.config.moving_passes
+    }
+
+    /// Passes of the current target missed so far. A pass is missed when the base has been
+    /// past ξ_C (or, on a reactive approach, in its slow zone) for `pass_timeout` with the
+    /// task still not done: a reach that fell short, a grasp the arm could not finish. The
+    /// base then comes around: the passed latch clears, the plan is chosen afresh from where
+    /// the base is, and the latch waits for the base to be back on a run-in, well before ξ_C.
+    /// From `moving_passes` missed passes on, the approach is the reactive one.
+    pub fn missed_passes(&self) -> u32 {
+        self.missed
+    }
+
+    /// Gives up the current pass (see [`BaseController::missed_passes`]); after the reactive
+    /// one, the target ([`BaseController::gave_up`]).
+    fn miss_pass(&mut self) {
+        self.missed += 1;
+        self.lingered = 0.0;
+        if self.gave_up() {
+            self.passed = true;
+            return;
+        }
+        self.passed = false;
+        self.rearm = true;
+        self.current = Approach::default();
+        self.next = Approach::default();
     }
 
     /// Whether the base is on the run-in of `pass` (ξ_C): on its line within the tolerance,
@@ -724,6 +861,7 @@ impl BaseController {
             && u <= self.config.run_out
             && e.abs() <= tolerance
             && wrap_angle(base.yaw - pass.yaw).abs() <= std::f64::consts::FRAC_PI_4
+            && (!self.rearm || u <= -0.5 * self.config.run_in)
     }
 
     /// Updates `approach` toward `target` (then the targets `ahead` of it, the next and the one
@@ -1347,12 +1485,15 @@ mod tests {
         }
     }
 
-    /// The default config, except that the base does not stop behind a passed target: the
-    /// tasks of these drives never finish (there is no arm), and the stop is tested on its own
-    /// (`a_pending_target_falling_behind_slows_the_base_to_a_stop`).
+    /// The default config, except that the base neither stops behind a passed target nor
+    /// comes around for it: the tasks of these drives never finish (there is no arm), and the
+    /// stop and the second approach are tested on their own
+    /// (`a_pending_target_falling_behind_slows_the_base_to_a_stop`,
+    /// `a_missed_pass_comes_around_and_then_stops_beside_the_target`).
     fn drive_past_config() -> BaseControllerConfig {
         BaseControllerConfig {
             linger_stop_distance: 0.0,
+            pass_timeout: 0.0,
             ..BaseControllerConfig::default()
         }
     }
@@ -1473,6 +1614,55 @@ mod tests {
         let half = speed_with_target_behind(0.5 * stop);
         assert!((half - 0.5 * linger).abs() < 1e-9, "{half}");
         assert_eq!(speed_with_target_behind(stop + 0.1), 0.0);
+    }
+
+    #[test]
+    fn a_missed_pass_comes_around_and_then_stops_beside_the_target() {
+        // The task never ends (no arm): after `pass_timeout` past the target the base comes
+        // around for a second pass; that one missed too (`moving_passes` = 2), the third
+        // approach is the reactive one, to a stop with the target abeam of the arm's base.
+        let config = BaseControllerConfig::default();
+        let model = frankie_like();
+        let mut controller = BaseController::new(config.clone(), model);
+        let target = Vector3::new(3.0, 0.0, 0.45);
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        // Per pass (index = passes missed before it): the closest the base came to the target.
+        let mut closest = vec![f64::INFINITY; 3];
+        let mut stopped_beside = None;
+        for k in 0..(150.0 / DT) as usize {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base,
+                    target: TargetEstimate::fixed(target),
+                    next_target: Vector3::new(8.0, 0.0, 0.35),
+                    after_next: None,
+                    dt: DT,
+                })
+                .unwrap();
+            assert_eq!(out.missed_passes, controller.missed_passes());
+            let pass = (out.missed_passes as usize).min(2);
+            let at = Vector2::new(base.x, base.y);
+            closest[pass] = closest[pass].min((xy(&target) - at).norm());
+            if out.missed_passes == 2 && out.command.v == 0.0 && stopped_beside.is_none() {
+                let heading = Vector2::new(base.yaw.cos(), base.yaw.sin());
+                let ahead = (xy(&target) - model.arm_base_at(&base)).dot(&heading);
+                stopped_beside = Some((k as f64 * DT, ahead, (xy(&target) - at).norm()));
+            }
+            integrate(&mut base, out.command, DT);
+        }
+        // Every pass, the reactive one too, goes by the target at about r_C.
+        for d in &closest {
+            assert!((d - 0.6).abs() < 0.1, "passes came within {closest:?}");
+        }
+        let (t, ahead, distance) = stopped_beside.expect("the reactive approach never stopped");
+        assert!(ahead.abs() < 0.02, "stopped with the target {ahead:.3} m ahead (t = {t:.1} s)");
+        assert!((distance - 0.6).abs() < 0.1, "stopped {distance:.3} m from the target");
+        // Waiting there another `pass_timeout` missed the third pass as well: the base gives
+        // the target up and drives on to the next one, at v_F.
+        assert_eq!(controller.missed_passes(), 3);
+        assert!(controller.gave_up());
+        assert!(base.x > 6.0 && base.y.abs() < 1.0, "gave up at {base:?}");
     }
 
     #[test]
@@ -1878,3 +2068,4 @@ mod tests {
         BaseControllerConfig::default().validate(file).unwrap();
     }
 }
+

@@ -161,6 +161,8 @@ pub struct Mission {
     start: Vector3<f64>,
     current: usize,
     phase: Phase,
+    /// Whether each task was given up.
+    failed: Vec<bool>,
 }
 
 /// What the sequencer reports after a step.
@@ -184,11 +186,45 @@ impl Mission {
         };
         Self {
             config,
+            failed: vec![false; tasks.len()],
             tasks,
             start,
             current: 0,
             phase,
         }
+    }
+
+    /// Gives the current task up (its target could not be reached: the base gave it up after
+    /// its passes, see `crate::base_controller`) and goes on with the next task that does not
+    /// depend on it: a pick's places of the same object are given up with it (there is nothing
+    /// to place). Returns whether a task was given up.
+    pub fn give_up(&mut self) -> bool {
+        let Some(task) = self.current_task().copied() else {
+            return false;
+        };
+        self.failed[self.current] = true;
+        if task.kind == TaskKind::Pick {
+            for (later, failed) in self.tasks.iter().zip(&mut self.failed).skip(self.current + 1) {
+                if later.kind == TaskKind::Place && later.item == task.item {
+                    *failed = true;
+                }
+            }
+        }
+        self.current += 1;
+        while self.current < self.tasks.len() && self.failed[self.current] {
+            self.current += 1;
+        }
+        self.phase = if self.current >= self.tasks.len() {
+            Phase::Complete
+        } else {
+            Phase::Reach
+        };
+        true
+    }
+
+    /// How many tasks were given up.
+    pub fn failed_tasks(&self) -> usize {
+        self.failed.iter().filter(|&&f| f).count()
     }
 
     /// The tasks, in order.
@@ -318,6 +354,37 @@ mod tests {
         let current = m.current_task().unwrap().position;
         let w = m.next_waypoint(&current);
         assert!((w - Vector3::new(6.0, 0.0, 0.35)).norm() < 1e-12, "{w}");
+    }
+
+    #[test]
+    fn giving_up_a_pick_gives_up_its_place_and_goes_on() {
+        let pick = |item, y| MissionTask {
+            kind: TaskKind::Pick,
+            item,
+            position: Vector3::new(2.0, y, 0.45),
+        };
+        let place = |item| MissionTask {
+            kind: TaskKind::Place,
+            item,
+            position: Vector3::new(4.0, 0.0, 0.35),
+        };
+        let mut m = Mission::new(
+            MissionConfig::default(),
+            vec![pick(0, 0.0), place(0), pick(1, 0.2), place(1)],
+            Vector3::zeros(),
+        );
+        m.step(0.05, TaskProgress::Active);
+        assert_eq!(m.phase(), Phase::Final);
+        // The first pick is given up in its final phase: its place goes too, the next pick is
+        // current and reaching.
+        assert!(m.give_up());
+        assert_eq!((m.task_index(), m.phase(), m.failed_tasks()), (2, Phase::Reach, 2));
+        // A place given up alone leaves the rest; the mission then is complete.
+        m.step(0.05, TaskProgress::Active);
+        m.step(0.05, TaskProgress::Done);
+        assert!(m.give_up());
+        assert_eq!((m.phase(), m.failed_tasks()), (Phase::Complete, 3));
+        assert!(!m.give_up());
     }
 
     #[test]

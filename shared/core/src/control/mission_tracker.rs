@@ -51,6 +51,8 @@ pub struct MissionTrackerInput<'a> {
     pub fix_stamp_ns: Option<u64>,
     /// The final-phase controller's latest progress report, if any.
     pub final_progress: Option<FinalProgress>,
+    /// The base planner has given up the current task's target ([`Mission::give_up`]).
+    pub gave_up: bool,
 }
 
 /// What the mission task publishes after a cycle.
@@ -72,6 +74,8 @@ pub struct MissionTrackerOutput {
     pub odometry_offset: [f64; 3],
     /// Tool-to-aim distance this cycle, m (infinite when it could not be computed).
     pub tool_to_target: f64,
+    /// Tasks given up so far.
+    pub failed_tasks: usize,
     /// The task or phase changed this cycle.
     pub changed: bool,
 }
@@ -134,6 +138,7 @@ impl MissionTracker {
             }),
             odometry_offset: self.correction.offset(),
             tool_to_target,
+            failed_tasks: self.mission.failed_tasks(),
             changed,
         }
     }
@@ -143,6 +148,9 @@ impl MissionTracker {
         let Some(task) = self.mission.current_task().copied() else {
             return self.output(f64::INFINITY, false);
         };
+        if input.gave_up && self.mission.give_up() {
+            return self.output(f64::INFINITY, true);
+        }
         let target = match input.estimate {
             Some(estimate)
                 if task.kind.is_perceived()
@@ -254,6 +262,7 @@ mod tests {
             estimate,
             fix_stamp_ns: estimate.map(|_| 1),
             final_progress: None,
+            gave_up: false,
         }
     }
 
@@ -333,6 +342,7 @@ mod tests {
             estimate: None,
             fix_stamp_ns: None,
             final_progress: None,
+            gave_up: false,
         });
         assert_eq!(out.phase, Phase::Reach);
         assert!(out.tool_to_target.is_infinite());
