@@ -377,6 +377,8 @@ fn base_plan_rejects_bad_fields() {
         range_entry_pose: [1.2, -0.4, 0.05],
         task_index: 0,
         passed: 0,
+        missed_passes: 0,
+        gave_up: 0,
     };
     assert_eq!(check(&ok), Ok(()));
     assert_rejected(
@@ -401,6 +403,7 @@ fn base_plan_rejects_bad_fields() {
     m.range_entry_pose[2] = -4.0;
     assert_rejected(&m, "range_entry_pose", Some(2), out_of_range);
     assert_rejected(&BasePlan { passed: 2, ..ok }, "passed", None, unknown_code);
+    assert_rejected(&BasePlan { gave_up: 2, ..ok }, "gave_up", None, unknown_code);
 }
 
 #[test]
@@ -483,7 +486,7 @@ fn mission_state_rejects_bad_fields() {
         current_target: [4.0, 0.0, 0.35],
         next_target: [0.0; 3],
         has_next: 0,
-        reserved: 0,
+        failed_tasks: 0,
         odometry_offset: [0.1, -0.2, 0.05],
     };
     assert_eq!(check(&ok), Ok(()));
@@ -519,6 +522,15 @@ fn mission_state_rejects_bad_fields() {
         "has_next",
         None,
         unknown_code,
+    );
+    assert_rejected(
+        &MissionState {
+            failed_tasks: 3,
+            ..ok
+        },
+        "failed_tasks",
+        None,
+        out_of_range,
     );
     let mut m = ok;
     m.next_target[0] = f64::NAN;

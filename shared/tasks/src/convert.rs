@@ -304,10 +304,13 @@ mod tests {
                 time_to_range: f64::INFINITY,
                 range_entry_pose: pose,
                 passed: true,
+                missed_passes: 2,
+                gave_up: true,
             },
         };
         let plan = plan_message(&out);
         valid(&plan);
+        assert_eq!((plan.missed_passes, plan.gave_up), (2, 1));
         assert_eq!(plan.time_to_range, envelope::TIME_TO_RANGE);
         assert!((plan.closest_approach[2] - wrap_angle(7.0)).abs() < 1e-12);
         let view = plan_view(&plan);
