@@ -154,6 +154,13 @@ pub struct BaseControllerConfig {
     /// On a reactive approach the base slows in proportion to the distance, along its heading,
     /// from the arm's base to the target, from v_F this far out to a stop abeam of it, m.
     pub reactive_slow_distance: f64,
+    /// The command is checked this far ahead, s (0 turns the check off): the footprint, driven
+    /// at the commanded v with ω ramping to the command at the yaw acceleration limit, must
+    /// keep `clearance` from every known target (or come no closer to it than now). If it does
+    /// not, the nearest turn rate that does is commanded instead, then half the speed, then a
+    /// turn on the spot. Routes are planned clear, but pure pursuit cuts their corners and a
+    /// route planned afresh from a lagging pose can swing the base across a platform.
+    pub guard_horizon: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -183,6 +190,7 @@ impl Default for BaseControllerConfig {
             pass_timeout: 8.0,
             moving_passes: 2,
             reactive_slow_distance: 0.6,
+            guard_horizon: 1.0,
         }
     }
 }
@@ -250,6 +258,7 @@ impl BaseControllerConfig {
                 non_negative(self.linger_stop_distance),
             ),
             ("pass_timeout", non_negative(self.pass_timeout)),
+            ("guard_horizon", non_negative(self.guard_horizon)),
             (
                 "reactive_slow_distance",
                 positive(self.reactive_slow_distance),
@@ -264,7 +273,7 @@ impl BaseControllerConfig {
                      look_ahead, replan_deviation, replan_period, route_refresh_distance, run_in_tolerance, \
                      yaw_acceleration_fraction, yaw_acceleration_per_speed, reactive_slow_distance > 0; \
                      run_in, run_out, turn_cost, replan_margin, commit_distance, obstacle_radius, \
-                     clearance, pass_margin, linger_stop_distance, pass_timeout ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
+                     clearance, pass_margin, linger_stop_distance, pass_timeout, guard_horizon ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
         }
@@ -400,6 +409,12 @@ const LEADS: [f64; 3] = [0.0, 1.0, 2.0];
 /// While every route is blocked, a route point within this bearing of the heading (rad) counts
 /// as straight ahead, through what blocks the way (see `BaseController::step`).
 const BLOCKED_STRAIGHT_AHEAD: f64 = 0.2;
+
+/// Time step of the command check ([`BaseControllerConfig::guard_horizon`]), s.
+const GUARD_STEP: f64 = 0.1;
+
+/// Turn rates the command check tries: this many steps of the yaw-rate limit each way.
+const GUARD_TURNS: i32 = 6;
 
 /// Spacing of the points at which a route is checked against the known targets, m.
 const CLEARANCE_STEP: f64 = 0.1;
@@ -793,6 +808,7 @@ impl BaseController {
             self.blocked_turn = None;
             (speed, pursue(b, point, speed))
         };
+        let (speed, wanted_omega) = self.guard(b, speed, wanted_omega, &obstacles);
 
         let max_change = self
             .config
@@ -836,6 +852,44 @@ impl BaseController {
     /// From `moving_passes` missed passes on, the approach is the reactive one.
     pub fn missed_passes(&self) -> u32 {
         self.missed
+    }
+
+    /// `(v, ω)`, or the command nearest it that keeps the footprint clear of the known targets
+    /// over `guard_horizon` (see [`BaseControllerConfig::guard_horizon`]).
+    fn guard(&self, base: &BasePose, v: f64, omega: f64, obstacles: &[Vector2<f64>]) -> (f64, f64) {
+        let horizon = self.config.guard_horizon;
+        if horizon <= 0.0 {
+            return (v, omega);
+        }
+        let max_rate = self.model.max_yaw_rate;
+        let acceleration = self.config.yaw_acceleration(self.model.max_yaw_acceleration);
+        let clear = |v: f64, omega: f64| {
+            let steps = (horizon / GUARD_STEP).ceil() as usize;
+            let mut pose = *base;
+            let mut w = self.last_omega;
+            let poses = (0..steps).map(move |_| {
+                w += (omega - w).clamp(-acceleration * GUARD_STEP, acceleration * GUARD_STEP);
+                pose.yaw = wrap_angle(pose.yaw + w * GUARD_STEP);
+                pose.x += v * GUARD_STEP * pose.yaw.cos();
+                pose.y += v * GUARD_STEP * pose.yaw.sin();
+                pose
+            });
+            self.clear_poses(base, v * horizon, obstacles, poses)
+        };
+        if clear(v, omega) {
+            return (v, omega);
+        }
+        let mut turns: Vec<f64> = (-GUARD_TURNS..=GUARD_TURNS)
+            .map(|k| max_rate * k as f64 / GUARD_TURNS as f64)
+            .collect();
+        turns.sort_by(|a, b| (a - omega).abs().total_cmp(&(b - omega).abs()));
+        for speed in [v, 0.5 * v] {
+            if let Some(&w) = turns.iter().find(|&&w| clear(speed, w)) {
+                return (speed, w);
+            }
+        }
+        let spin = if omega >= 0.0 { 0.5 } else { -0.5 } * max_rate;
+        (0.0, if clear(0.0, spin) { spin } else { -spin })
     }
 
     /// Gives up the current pass (see [`BaseController::missed_passes`]); after the reactive
