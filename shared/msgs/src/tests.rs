@@ -403,7 +403,12 @@ fn base_plan_rejects_bad_fields() {
     m.range_entry_pose[2] = -4.0;
     assert_rejected(&m, "range_entry_pose", Some(2), out_of_range);
     assert_rejected(&BasePlan { passed: 2, ..ok }, "passed", None, unknown_code);
-    assert_rejected(&BasePlan { gave_up: 2, ..ok }, "gave_up", None, unknown_code);
+    assert_rejected(
+        &BasePlan { gave_up: 2, ..ok },
+        "gave_up",
+        None,
+        unknown_code,
+    );
 }
 
 #[test]

@@ -111,7 +111,8 @@ impl Task for SimWorldTask {
     fn step(&mut self, now_ns: u64, inputs: &SimWorldInputs) -> SimWorldOutputs {
         let origin = *self.origin_ns.get_or_insert(now_ns);
         if inputs.mission.as_ref().is_some_and(|m| {
-            m.failed_tasks > 0 && msgs::TaskPhase::try_from(m.phase) == Ok(msgs::TaskPhase::Complete)
+            m.failed_tasks > 0
+                && msgs::TaskPhase::try_from(m.phase) == Ok(msgs::TaskPhase::Complete)
         }) {
             self.sim.mission_gave_up();
         }

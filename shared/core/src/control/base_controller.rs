@@ -664,10 +664,13 @@ impl BaseController {
         // Past ξ_C means on its line beyond it: being anywhere ahead of ξ_C's heading (a
         // container passed heading north, seen from a pick-up place north of it) is not.
         let past_pass = self.passed
-            || !self.rearm && current_pass.is_some_and(|pass| {
-                let (u, e) = line_offset(b, &pass);
-                u > 0.0 && u <= self.config.run_out && e.abs() <= 2.0 * self.config.run_in_tolerance
-            });
+            || !self.rearm
+                && current_pass.is_some_and(|pass| {
+                    let (u, e) = line_offset(b, &pass);
+                    u > 0.0
+                        && u <= self.config.run_out
+                        && e.abs() <= 2.0 * self.config.run_in_tolerance
+                });
         let speed = if past_pass {
             // The reactive way: the farther the target falls behind the arm's base, the slower
             // the base, down to a stop `linger_stop_distance` behind it. A drop or a lift that
@@ -785,9 +788,9 @@ impl BaseController {
                 if bearing.abs() > BLOCKED_STRAIGHT_AHEAD {
                     bearing.signum()
                 } else {
-                    let nearest = obstacles.iter().min_by(|p, q| {
-                        (*p - base_xy).norm().total_cmp(&(*q - base_xy).norm())
-                    });
+                    let nearest = obstacles
+                        .iter()
+                        .min_by(|p, q| (*p - base_xy).norm().total_cmp(&(*q - base_xy).norm()));
                     nearest.map_or(1.0, |o| {
                         let away = o - base_xy;
                         if wrap_angle(away.y.atan2(away.x) - b.yaw) > 0.0 {
@@ -862,7 +865,9 @@ impl BaseController {
             return (v, omega);
         }
         let max_rate = self.model.max_yaw_rate;
-        let acceleration = self.config.yaw_acceleration(self.model.max_yaw_acceleration);
+        let acceleration = self
+            .config
+            .yaw_acceleration(self.model.max_yaw_acceleration);
         let clear = |v: f64, omega: f64| {
             let steps = (horizon / GUARD_STEP).ceil() as usize;
             let mut pose = *base;
@@ -1710,13 +1715,44 @@ mod tests {
             assert!((d - 0.6).abs() < 0.1, "passes came within {closest:?}");
         }
         let (t, ahead, distance) = stopped_beside.expect("the reactive approach never stopped");
-        assert!(ahead.abs() < 0.02, "stopped with the target {ahead:.3} m ahead (t = {t:.1} s)");
-        assert!((distance - 0.6).abs() < 0.1, "stopped {distance:.3} m from the target");
+        assert!(
+            ahead.abs() < 0.02,
+            "stopped with the target {ahead:.3} m ahead (t = {t:.1} s)"
+        );
+        assert!(
+            (distance - 0.6).abs() < 0.1,
+            "stopped {distance:.3} m from the target"
+        );
         // Waiting there another `pass_timeout` missed the third pass as well: the base gives
         // the target up and drives on to the next one, at v_F.
         assert_eq!(controller.missed_passes(), 3);
         assert!(controller.gave_up());
         assert!(base.x > 6.0 && base.y.abs() < 1.0, "gave up at {base:?}");
+    }
+
+    #[test]
+    fn a_command_into_a_known_target_is_turned_aside() {
+        let controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let base = BasePose::new(0.0, 0.0, 0.0);
+        // Nothing near: the command stands.
+        assert_eq!(controller.guard(&base, 0.3, 0.1, &[]), (0.3, 0.1));
+        let far = [Vector2::new(3.0, 0.0)];
+        assert_eq!(controller.guard(&base, 0.3, 0.0, &far), (0.3, 0.0));
+        // A platform 0.85 m ahead: the front (0.34 m out) is 0.29 m from its circle, and a
+        // second at 0.3 m/s straight on would bring it within the clearance. No turn the base
+        // can get into within the second clears it at that speed (ω ramps at the limit): it
+        // goes on at half the speed, straight on as asked.
+        let ahead = [Vector2::new(0.85, 0.0)];
+        assert_eq!(controller.guard(&base, 0.3, 0.0, &ahead), (0.15, 0.0));
+        // Ahead to the left, a turn to the right clears it at the full speed.
+        let aside = [Vector2::new(0.85, 0.25)];
+        let (v, omega) = controller.guard(&base, 0.3, 0.0, &aside);
+        assert!(v == 0.3 && omega < 0.0, "({v}, {omega})");
+        // Pressed against it, the base only turns on the spot.
+        let touching = [Vector2::new(0.6, 0.0)];
+        let (v, omega) = controller.guard(&base, 0.3, 0.0, &touching);
+        assert_eq!(v, 0.0, "({v}, {omega})");
+        assert!(omega.abs() > 0.0);
     }
 
     #[test]
@@ -2122,4 +2158,3 @@ mod tests {
         BaseControllerConfig::default().validate(file).unwrap();
     }
 }
-

@@ -204,7 +204,12 @@ impl Mission {
         };
         self.failed[self.current] = true;
         if task.kind == TaskKind::Pick {
-            for (later, failed) in self.tasks.iter().zip(&mut self.failed).skip(self.current + 1) {
+            for (later, failed) in self
+                .tasks
+                .iter()
+                .zip(&mut self.failed)
+                .skip(self.current + 1)
+            {
                 if later.kind == TaskKind::Place && later.item == task.item {
                     *failed = true;
                 }
@@ -378,7 +383,10 @@ mod tests {
         // The first pick is given up in its final phase: its place goes too, the next pick is
         // current and reaching.
         assert!(m.give_up());
-        assert_eq!((m.task_index(), m.phase(), m.failed_tasks()), (2, Phase::Reach, 2));
+        assert_eq!(
+            (m.task_index(), m.phase(), m.failed_tasks()),
+            (2, Phase::Reach, 2)
+        );
         // A place given up alone leaves the rest; the mission then is complete.
         m.step(0.05, TaskProgress::Active);
         m.step(0.05, TaskProgress::Done);
