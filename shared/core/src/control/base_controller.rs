@@ -54,6 +54,7 @@ use nalgebra::{Rotation2, Vector2};
 use serde::Deserialize;
 
 use crate::error::ModelError;
+use crate::facing::{FacingJoint, FacingReach};
 use crate::input_check::{NonFiniteInput, ensure_finite};
 use crate::kinematics::BasePose;
 use crate::reach_range::arm_base_in_base_frame;
@@ -87,8 +88,17 @@ impl PassSide {
 pub struct BaseControllerConfig {
     /// Constant forward speed v_F, m/s (clamped to the base's speed limit).
     pub forward_speed: f64,
-    /// Closest-approach radius r_C = r_R + r_P = 0.25 + 0.35 m.
+    /// Closest-approach radius r_C = r_R + r_P = 0.25 + 0.35 m. A controller raises it for a
+    /// wide base to keep [`BaseControllerConfig::pass_clearance`]
+    /// ([`BaseController::new`]; its [`BaseController::config`] holds the value in use).
     pub closest_approach_radius: f64,
+    /// Smallest gap, m, between the side of the base's footprint and a target's obstacle
+    /// circle (`obstacle_radius`) as the base passes the target at r_C: r_C is at least half the
+    /// footprint's width + `obstacle_radius` + this. 0.1: Frankie (0.47 m wide) keeps 0.115 m
+    /// at r_C = 0.6 m and Fetch (0.56 m) 0.1 m, both unchanged; the Husky (0.67 m) passes at
+    /// 0.655 m instead of 0.6 m, where its long front corners, swinging out as it steered onto
+    /// a container's moving estimate, struck the container.
+    pub pass_clearance: f64,
     /// Smallest turning radius of a route's arcs, m (the radius is also at least v_F over the
     /// base's yaw-rate limit). 0.6 m: turning round a target at r_C, the arc's centre is the
     /// target, and the base's corners swing out by a few centimetres only.
@@ -161,6 +171,11 @@ pub struct BaseControllerConfig {
     /// turn on the spot. Routes are planned clear, but pure pursuit cuts their corners and a
     /// route planned afresh from a lagging pose can swing the base across a platform.
     pub guard_horizon: f64,
+    /// Where the arm's facing joint stops short of a full turn, the lingering base stops
+    /// earlier than `linger_stop_distance`: before the target's bearing from that joint's axis
+    /// comes within this of the joint's limit, rad (0.2: the QP's joint-limit damper stops the
+    /// joint 0.1 rad short of its limit, and the arm needs a little more to reach round).
+    pub linger_bearing_margin: f64,
 }
 
 impl Default for BaseControllerConfig {
@@ -168,6 +183,7 @@ impl Default for BaseControllerConfig {
         Self {
             forward_speed: 0.3,
             closest_approach_radius: 0.6,
+            pass_clearance: 0.1,
             min_turn_radius: 0.6,
             run_in: 1.0,
             run_out: 0.4,
@@ -191,6 +207,7 @@ impl Default for BaseControllerConfig {
             moving_passes: 2,
             reactive_slow_distance: 0.6,
             guard_horizon: 1.0,
+            linger_bearing_margin: 0.2,
         }
     }
 }
@@ -220,6 +237,7 @@ impl BaseControllerConfig {
                 "closest_approach_radius",
                 positive(self.closest_approach_radius),
             ),
+            ("pass_clearance", non_negative(self.pass_clearance)),
             ("min_turn_radius", positive(self.min_turn_radius)),
             ("run_in", non_negative(self.run_in)),
             ("run_out", non_negative(self.run_out)),
@@ -263,6 +281,10 @@ impl BaseControllerConfig {
                 "reactive_slow_distance",
                 positive(self.reactive_slow_distance),
             ),
+            (
+                "linger_bearing_margin",
+                (0.0..std::f64::consts::FRAC_PI_2).contains(&self.linger_bearing_margin),
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -273,7 +295,9 @@ impl BaseControllerConfig {
                      look_ahead, replan_deviation, replan_period, route_refresh_distance, run_in_tolerance, \
                      yaw_acceleration_fraction, yaw_acceleration_per_speed, reactive_slow_distance > 0; \
                      run_in, run_out, turn_cost, replan_margin, commit_distance, obstacle_radius, \
-                     clearance, pass_margin, linger_stop_distance, pass_timeout, guard_horizon ≥ 0; 1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
+                     clearance, pass_margin, linger_stop_distance, pass_clearance, pass_timeout, \
+                     guard_horizon ≥ 0; 0 ≤ linger_bearing_margin < π/2; \
+                     1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
         }
@@ -340,6 +364,10 @@ pub struct BaseModel {
     pub max_yaw_acceleration: f64,
     /// Half the footprint's length and width (a rectangle about the base frame's origin), m.
     pub half_extents: Vector2<f64>,
+    /// How far round the arm's facing joint turns, when its limits stop it short of a full
+    /// turn (Fetch's shoulder pan, ±92°): the lingering base stops before a target falls
+    /// behind the bearings the arm can face ([`BaseControllerConfig::linger_bearing_margin`]).
+    pub facing_reach: Option<FacingReach>,
 }
 
 impl BaseModel {
@@ -363,7 +391,35 @@ impl BaseModel {
                 0.5 * robot.config.footprint[0],
                 0.5 * robot.config.footprint[1],
             ),
+            facing_reach: FacingJoint::from_robot(robot).and_then(|f| f.reach(robot)),
         }
+    }
+
+    /// How far behind the arm base (along the heading) a target at `target` may fall, with the
+    /// base at `pose`, before the arm's facing joint can no longer face it with `margin` rad to
+    /// spare before its limit, m; `None` when the joint turns all the way round. A target
+    /// abeam of the joint's axis needs a bearing of ±90°, so a joint that stops at ±92° (Fetch)
+    /// allows it barely to pass the axis; the Panda's ±166° allow more than a metre.
+    pub fn max_target_behind(
+        &self,
+        pose: &BasePose,
+        target: &Vector2<f64>,
+        margin: f64,
+    ) -> Option<f64> {
+        let reach = self.facing_reach?;
+        let turn = Rotation2::new(pose.yaw);
+        let axis = Vector2::new(pose.x, pose.y) + turn * reach.axis;
+        let local = turn.inverse() * (target - axis);
+        // The farthest bearing the joint may face on the target's side, past abeam (π/2) by at
+        // most a little under a quarter turn so that the tangent stays finite.
+        let limit = if local.y >= 0.0 {
+            reach.max_bearing - margin
+        } else {
+            -(reach.min_bearing + margin)
+        };
+        let past_abeam = (limit - std::f64::consts::FRAC_PI_2).clamp(-1.5, 1.5);
+        let behind_axis = local.y.abs() * past_abeam.tan();
+        Some(behind_axis + (reach.axis.x - self.arm_base.x))
     }
 }
 
@@ -552,7 +608,10 @@ pub struct BaseController {
 
 impl BaseController {
     /// A controller with `config` for the robot described by `model`, with no known layout.
-    pub fn new(config: BaseControllerConfig, model: BaseModel) -> Self {
+    pub fn new(mut config: BaseControllerConfig, model: BaseModel) -> Self {
+        config.closest_approach_radius = config
+            .closest_approach_radius
+            .max(model.half_extents.y + config.obstacle_radius + config.pass_clearance);
         Self {
             config,
             model,
@@ -676,10 +735,18 @@ impl BaseController {
             // the base, down to a stop `linger_stop_distance` behind it. A drop or a lift that
             // began late, with the target already behind, otherwise swung the arm's first joint
             // into its limit damper and the base carried the tool away from the container.
+            // The stop comes earlier, by `shift`, where the arm's facing joint could not turn
+            // far enough round to reach the target that far behind (Fetch: the base stopped
+            // with the cube 0.4 m behind its torso, out of the shoulder pan's ±92°, and the
+            // arm never reached it).
             let behind = -(target - self.model.arm_base_at(b)).dot(&heading);
             let stop = self.config.linger_stop_distance;
+            let shift = self
+                .model
+                .max_target_behind(b, &target, self.config.linger_bearing_margin)
+                .map_or(0.0, |allowed| (stop - allowed).max(0.0));
             let scale = if stop > 0.0 {
-                (1.0 - behind / stop).clamp(0.0, 1.0)
+                (1.0 - (behind + shift) / stop).clamp(0.0, 1.0)
             } else {
                 1.0
             };
@@ -1442,7 +1509,50 @@ mod tests {
             max_yaw_rate: 1.5,
             max_yaw_acceleration: 2.0,
             half_extents: Vector2::new(0.34, 0.235),
+            facing_reach: None,
         }
+    }
+
+    #[test]
+    fn a_wide_base_passes_farther_out_to_keep_its_clearance() {
+        let config = BaseControllerConfig::default();
+        let frankie = BaseController::new(config.clone(), frankie_like());
+        assert_eq!(frankie.config().closest_approach_radius, 0.6);
+        let husky = BaseModel {
+            half_extents: Vector2::new(0.495, 0.335),
+            ..frankie_like()
+        };
+        let husky = BaseController::new(config, husky);
+        assert!((husky.config().closest_approach_radius - 0.655).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_linger_stop_keeps_the_target_within_the_facing_joint_s_reach() {
+        // Fetch-like: the shoulder pan 0.12 m ahead of the arm base (the torso), stopping at ±92°.
+        let model = BaseModel {
+            arm_base: Vector2::new(-0.087, 0.0),
+            facing_reach: Some(FacingReach {
+                axis: Vector2::new(0.033, 0.0),
+                min_bearing: -1.6056,
+                max_bearing: 1.6056,
+            }),
+            ..frankie_like()
+        };
+        let base = BasePose::new(1.0, 0.0, 0.0);
+        // A target 0.6 m to the right: with 0.2 rad to spare the pan faces at most 1.4056 rad,
+        // short of abeam, so the target must stay 0.6·tan(0.165) ahead of the pan axis.
+        let allowed = model
+            .max_target_behind(&base, &Vector2::new(1.5, -0.6), 0.2)
+            .expect("the pan stops short of a full turn");
+        let expected = 0.6 * (1.4056 - std::f64::consts::FRAC_PI_2).tan() + 0.12;
+        assert!((allowed - expected).abs() < 1e-9, "{allowed} vs {expected}");
+        // The same on the left, and no limit for a joint that turns all the way round.
+        let left = model.max_target_behind(&base, &Vector2::new(1.5, 0.6), 0.2);
+        assert!((left.unwrap() - expected).abs() < 1e-9);
+        assert_eq!(
+            frankie_like().max_target_behind(&base, &Vector2::new(1.5, 0.6), 0.2),
+            None
+        );
     }
 
     /// Integrates a unicycle as docs/algorithms.md §1 says: rotate by ω·dt, then move v·dt along the

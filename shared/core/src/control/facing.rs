@@ -15,7 +15,7 @@
 //! then `wrap(atan2(p.y, p.x) − q − offset)`, p being the tool in that frame: zero at the ready
 //! pose, and for the Panda (offset 0) exactly the paper's term.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Vector2, Vector3};
 
 use crate::chain::JointKind;
 use crate::kinematics::BasePose;
@@ -80,6 +80,42 @@ impl FacingJoint {
     }
 }
 
+/// How far round the arm's facing joint can turn the arm: the joint's axis and the bearings
+/// (about the base heading, seen from that axis) it faces at its position limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FacingReach {
+    /// Where the facing joint's axis is, horizontally, in the base frame, m.
+    pub axis: Vector2<f64>,
+    /// Bearing the joint faces at its lower position limit, rad (about the base's x axis,
+    /// counter-clockwise positive).
+    pub min_bearing: f64,
+    /// Bearing the joint faces at its upper position limit, rad.
+    pub max_bearing: f64,
+}
+
+impl FacingJoint {
+    /// The facing joint's reach on `robot` (the joints before it at the ready pose), or `None`
+    /// when its position limits allow a full turn or more (the UR5's ±2π): then no bearing is
+    /// out of its reach.
+    pub fn reach(&self, robot: &Robot) -> Option<FacingReach> {
+        let limits = &robot.limits()[BASE_JOINTS + self.arm_index];
+        let span = limits.position_max - limits.position_min;
+        // Continuous joints (infinite limits) and joints of a turn or more.
+        if span.is_nan() || span >= std::f64::consts::TAU {
+            return None;
+        }
+        let frame = zero_frame(robot, &robot.config.ready_pose, self.arm_index);
+        let x = frame.rotation * Vector3::x();
+        let frame_yaw = x.y.atan2(x.x);
+        let axis = frame.translation.vector;
+        Some(FacingReach {
+            axis: Vector2::new(axis.x, axis.y),
+            min_bearing: frame_yaw + limits.position_min + self.offset,
+            max_bearing: frame_yaw + limits.position_max + self.offset,
+        })
+    }
+}
+
 /// Frame of arm joint `arm_index` at its zero position, in the mobile base frame (base joints at
 /// zero), with the arm joints before it at `arm_q`.
 fn zero_frame(robot: &Robot, arm_q: &[f64], arm_index: usize) -> Isometry3<f64> {
@@ -136,6 +172,29 @@ mod tests {
         let facing = FacingJoint::from_robot(&fetch).expect("Fetch has a shoulder pan");
         assert_eq!(facing.arm_index, 1);
         assert!(facing.offset.abs() < 1e-6, "{facing:?}");
+    }
+
+    #[test]
+    fn only_fetch_s_shoulder_pan_has_a_reach_short_of_a_full_turn() {
+        assert!(
+            FacingJoint::from_robot(&robot("husky_ur5"))
+                .and_then(|f| f.reach(&robot("husky_ur5")))
+                .is_none()
+        );
+        let fetch = robot("fetch");
+        let reach = FacingJoint::from_robot(&fetch)
+            .and_then(|f| f.reach(&fetch))
+            .expect("Fetch's pan stops at ±1.6056 rad");
+        assert!((reach.max_bearing - 1.6056).abs() < 1e-6, "{reach:?}");
+        assert!((reach.min_bearing + 1.6056).abs() < 1e-6, "{reach:?}");
+        // The shoulder pan sits 0.119525 m ahead of the torso, itself 0.086875 m behind the
+        // base centre.
+        assert!((reach.axis.x - 0.03265).abs() < 1e-6, "{reach:?}");
+        let frankie = robot("frankie");
+        let panda = FacingJoint::from_robot(&frankie)
+            .and_then(|f| f.reach(&frankie))
+            .expect("the Panda's joint 1 stops at ±2.8973 rad");
+        assert!((panda.max_bearing - 2.8973).abs() < 1e-6, "{panda:?}");
     }
 
     #[test]

@@ -564,6 +564,7 @@ mod tests {
             max_yaw_rate: 1.5,
             max_yaw_acceleration: 2.0,
             half_extents: Vector2::new(0.34, 0.235),
+            facing_reach: None,
         }
     }
 

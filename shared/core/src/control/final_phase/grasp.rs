@@ -3,7 +3,8 @@
 //! Stages:
 //! 1. [`Approach`](FinalPhaseStage::Approach): servo the tool top-down onto the grasp point
 //!    (target + `grasp_offset`) with k_P and the object's velocity as feed-forward. The goal is
-//!    raised by `descent_slope` × horizontal error so the fingers come down onto the object. When
+//!    raised by `descent_slope` × horizontal error so the fingers come down onto the object;
+//!    under that cone the tool closes in only by the share of the cone's height it has. When
 //!    the tool is within ε_g (`close_distance`) of the grasp point and within `close_max_tilt`
 //!    of top-down, close.
 //! 2. [`Closing`](FinalPhaseStage::Closing): keep servoing onto the grasp point while the
@@ -161,10 +162,22 @@ impl GraspController {
             }
             (FinalPhaseStage::Approach, _) => {
                 let grasp_point = self.grasp_point(input);
-                let horizontal = (grasp_point - input.tool_pose.translation.vector)
-                    .xy()
-                    .norm();
-                let raised = grasp_point + Vector3::z() * (self.config.descent_slope * horizontal);
+                let tool = input.tool_pose.translation.vector;
+                let horizontal = (grasp_point - tool).xy().norm();
+                let rise = self.config.descent_slope * horizontal;
+                let mut raised = grasp_point + Vector3::z() * rise;
+                // Under the cone the tool closes in only by the share of the cone's height it
+                // already has: at the grasp point's height it rises straight up, on the cone it
+                // closes in fully. Handed over at d_T with the fingers level with the object's
+                // top (a UR5, with no joint to spare for the QP's manipulability term, arrives
+                // 3 cm under the pre-grasp height, itself under the cone at d_T), the tool
+                // otherwise swept sideways into the object before it had climbed.
+                let under = raised.z - tool.z;
+                if under > 0.0 && rise > 0.0 {
+                    let share = (1.0 - under / rise).clamp(0.0, 1.0);
+                    raised.x = tool.x + (raised.x - tool.x) * share;
+                    raised.y = tool.y + (raised.y - tool.y) * share;
+                }
                 (raised, input.target.velocity)
             }
             _ => (self.grasp_point(input), input.target.velocity),
@@ -391,6 +404,45 @@ mod tests {
             }
             if out.gripper == GripperCommand::Close {
                 assert!(offset.norm() < config.grasp.close_distance);
+                return;
+            }
+            world.advance(&out);
+        }
+        panic!("never closed");
+    }
+
+    #[test]
+    fn a_tool_handed_over_under_the_descent_cone_climbs_before_closing_in() {
+        // Handed over 7 cm to the side and only 2 cm above the cube centre (fingertips level
+        // with the cube's top), 5 cm under the cone: the first command is mostly up, and the
+        // tool then stays above the cube's top while within a finger's reach of it.
+        let config = super::super::FinalPhaseConfig::default();
+        let mut controller = GraspController::new(config.servo, config.grasp);
+        let start = CUBE + Vector3::new(-0.07, 0.0, 0.02);
+        let tool = Isometry3::new(start, Vector3::x() * PI);
+        let mut world = KinematicWorld::new(tool, 0.1, TargetPath::Static(CUBE), DT);
+        let first = controller.step(&world.input());
+        assert!(
+            first.twist[2] > first.twist.fixed_rows::<2>(0).norm(),
+            "first command {}",
+            first.twist
+        );
+        let reach = 0.04 + CUBE_WIDTH / 2.0;
+        for _ in 0..400 {
+            let out = controller.step(&world.input());
+            let offset = world.tool_from_target();
+            if out.stage == FinalPhaseStage::Approach
+                && offset.xy().norm() < reach
+                && offset.xy().norm() > 0.01
+            {
+                assert!(
+                    offset.z > CUBE_WIDTH / 2.0,
+                    "tool {} m above the cube centre at {} m to the side",
+                    offset.z,
+                    offset.xy().norm()
+                );
+            }
+            if out.gripper == GripperCommand::Close {
                 return;
             }
             world.advance(&out);
