@@ -472,6 +472,10 @@ const GUARD_STEP: f64 = 0.1;
 /// Turn rates the command check tries: this many steps of the yaw-rate limit each way.
 const GUARD_TURNS: i32 = 6;
 
+/// With neither the commanded speed, nor half of it, nor a turn on the spot clear, the command
+/// check lets the base creep on at this fraction of v_F.
+const GUARD_CREEP: f64 = 0.25;
+
 /// Spacing of the points at which a route is checked against the known targets, m.
 const CLEARANCE_STEP: f64 = 0.1;
 
@@ -955,13 +959,18 @@ impl BaseController {
             .map(|k| max_rate * k as f64 / GUARD_TURNS as f64)
             .collect();
         turns.sort_by(|a, b| (a - omega).abs().total_cmp(&(b - omega).abs()));
-        for speed in [v, 0.5 * v] {
-            if let Some(&w) = turns.iter().find(|&&w| clear(speed, w)) {
-                return (speed, w);
-            }
-        }
-        let spin = if omega >= 0.0 { 0.5 } else { -0.5 } * max_rate;
-        (0.0, if clear(0.0, spin) { spin } else { -spin })
+        // Standing still is always clear, and never a way out: on the spot only a turn counts,
+        // and with no turn clear the base creeps on, as straight as it can.
+        let creep = GUARD_CREEP * self.speed();
+        [v, 0.5 * v, 0.0, creep]
+            .into_iter()
+            .find_map(|speed| {
+                turns
+                    .iter()
+                    .find(|&&w| (speed > 0.0 || w != 0.0) && clear(speed, w))
+                    .map(|&w| (speed, w))
+            })
+            .unwrap_or((0.0, 0.0))
     }
 
     /// Gives up the current pass (see [`BaseController::missed_passes`]); after the reactive
@@ -1858,11 +1867,15 @@ mod tests {
         let aside = [Vector2::new(0.85, 0.25)];
         let (v, omega) = controller.guard(&base, 0.3, 0.0, &aside);
         assert!(v == 0.3 && omega < 0.0, "({v}, {omega})");
-        // Pressed against it, the base only turns on the spot.
+        // Pressed against it, where a turn on the spot or creeping on would bring a corner
+        // closer, the base stands.
         let touching = [Vector2::new(0.6, 0.0)];
-        let (v, omega) = controller.guard(&base, 0.3, 0.0, &touching);
-        assert_eq!(v, 0.0, "({v}, {omega})");
-        assert!(omega.abs() > 0.0);
+        assert_eq!(controller.guard(&base, 0.3, 0.0, &touching), (0.0, 0.0));
+        // Beside it, stopped and asked to turn toward it, the base turns on the spot no faster
+        // than keeps the front corner clear within the second; never not at all.
+        let beside = [Vector2::new(0.2, 0.55)];
+        let (v, omega) = controller.guard(&base, 0.0, 0.5, &beside);
+        assert!(v == 0.0 && omega != 0.0 && omega < 0.5, "({v}, {omega})");
     }
 
     #[test]
