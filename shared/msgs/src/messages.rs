@@ -714,17 +714,12 @@ pub struct MissionState {
 }
 
 message!(MissionState, |m, c| {
-    if m.task_index > m.task_count {
-        return Err(c.reject(
-            "task_index",
-            None,
-            RejectReason::OutOfRange {
-                value: f64::from(m.task_index),
-                min: 0.0,
-                max: f64::from(m.task_count),
-            },
-        ));
-    }
+    c.in_range(
+        "task_index",
+        f64::from(m.task_index),
+        0.0,
+        f64::from(m.task_count),
+    )?;
     c.code::<TaskKindCode>("task_kind", m.task_kind)?;
     c.code::<TaskPhase>("phase", m.phase)?;
     c.all_within(
@@ -734,17 +729,12 @@ message!(MissionState, |m, c| {
     )?;
     c.all_within("next_target", &m.next_target, envelope::WORLD_POSITION)?;
     flag(c, "has_next", m.has_next)?;
-    if m.failed_tasks > m.task_count {
-        return Err(c.reject(
-            "failed_tasks",
-            None,
-            RejectReason::OutOfRange {
-                value: f64::from(m.failed_tasks),
-                min: 0.0,
-                max: f64::from(m.task_count),
-            },
-        ));
-    }
+    c.in_range(
+        "failed_tasks",
+        f64::from(m.failed_tasks),
+        0.0,
+        f64::from(m.task_count),
+    )?;
     c.all_within(
         "odometry_offset",
         &m.odometry_offset[..2],
