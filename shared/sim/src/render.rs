@@ -147,6 +147,8 @@ struct Tile {
     y1: usize,
     /// Index of the tile's first row in [`Renderer::ray_rows`] (its rows follow in order).
     first_row: usize,
+    /// Whether every pixel of the tile is inside the image circle.
+    full: bool,
     /// The cone that contains every ray of the tile.
     cone: Cone,
 }
@@ -161,6 +163,38 @@ impl Tile {
         own.half_angle + cone.half_angle >= std::f64::consts::PI
             || own.axis.dot(&cone.axis)
                 >= own.cos_half * cone.cos_half - own.sin_half * cone.sin_half - 1e-9
+    }
+
+    /// What every pixel of this tile sees when no box is in view, if it is the same surface
+    /// for all of them ([`RowHits::floor`]'s floor or background), the camera `height` (m) above
+    /// the floor, `up` the floor's normal in the camera frame. Decided from the tile's cone with
+    /// a margin far above the f32 rounding of the per-pixel test, so a surface returned here is
+    /// exactly the one that test gives every pixel; `None` when the tile is not wholly inside
+    /// the image circle or its cone may straddle the horizon.
+    fn sees_only(&self, up: &Vector3<f64>, height: f32) -> Option<u32> {
+        /// Least |cosine| between `up` and a ray for its side of the horizon to count as sure.
+        const MARGIN: f64 = 1e-5;
+        if !self.full {
+            return None;
+        }
+        if !(height > 0.0) {
+            return Some(SURFACE_BACKGROUND);
+        }
+        let cone = &self.cone;
+        let cos_axis = up.dot(&cone.axis);
+        let sin_axis = (1.0 - cos_axis * cos_axis).max(0.0).sqrt();
+        // The cosines of the angles from `up` to the nearest and farthest rays of the cone
+        // (valid when the cone does not contain `up`, resp. the direction opposite it).
+        let nearest = cos_axis * cone.cos_half + sin_axis * cone.sin_half;
+        let farthest = cos_axis * cone.cos_half - sin_axis * cone.sin_half;
+        let small = cone.half_angle < std::f64::consts::FRAC_PI_2;
+        if small && cos_axis <= cone.cos_half && nearest < -MARGIN {
+            Some(SURFACE_FLOOR)
+        } else if small && cos_axis >= -cone.cos_half && farthest > MARGIN {
+            Some(SURFACE_BACKGROUND)
+        } else {
+            None
+        }
     }
 }
 
@@ -401,6 +435,7 @@ impl Renderer {
                     x1,
                     y1,
                     first_row: ray_rows.len(),
+                    full: tile_rays().count() == (x1 - x0) * (y1 - y0),
                     // Margin for f32 rounding of the rays.
                     cone: Cone::new(axis, half_angle + 1e-4),
                 });
@@ -552,7 +587,8 @@ impl Renderer {
                     .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
             })
             .collect();
-        let floor_normal: [f32; 3] = (camera_from_world.rotation * Vector3::z()).cast().into();
+        let up = camera_from_world.rotation * Vector3::z();
+        let floor_normal: [f32; 3] = up.cast().into();
         let camera_height = world_from_camera.translation.z as f32;
         let mut candidates = Vec::with_capacity(boxes.len());
         for tile in &self.tiles {
@@ -561,20 +597,30 @@ impl Renderer {
                 None => Some(i),
                 Some(cone) => tile.may_see(cone).then_some(i),
             }));
+            // A tile that sees one surface only needs neither its rays nor the palette per pixel.
+            let only = if candidates.is_empty() {
+                tile.sees_only(&up, camera_height)
+            } else {
+                None
+            };
             let rows = &self.ray_rows[tile.first_row..tile.first_row + (tile.y1 - tile.y0)];
             for (y, rays) in (tile.y0..tile.y1).zip(rows) {
-                let mut hits = if candidates.is_empty() {
-                    RowHits::floor::<false>(rays, &floor_normal, camera_height)
-                } else {
-                    RowHits::floor::<true>(rays, &floor_normal, camera_height)
-                };
-                for &i in &candidates {
-                    hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
-                }
                 // Every pixel of the tile row, black outside the image circle.
                 let mut colours = [0u32; LANES];
-                for k in 0..LANES {
-                    colours[k] = palette[hits.surface[k] as usize];
+                if let Some(surface) = only {
+                    colours = [palette[surface as usize]; LANES];
+                } else {
+                    let mut hits = if candidates.is_empty() {
+                        RowHits::floor::<false>(rays, &floor_normal, camera_height)
+                    } else {
+                        RowHits::floor::<true>(rays, &floor_normal, camera_height)
+                    };
+                    for &i in &candidates {
+                        hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
+                    }
+                    for k in 0..LANES {
+                        colours[k] = palette[hits.surface[k] as usize];
+                    }
                 }
                 let row = &mut image[(y * w + tile.x0) * 3..(y * w + tile.x1) * 3];
                 if let Ok(whole) = <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
