@@ -574,17 +574,14 @@ impl Renderer {
                 )
             })
             .collect();
-        // Bounding cone of every box seen from the camera (None: the camera is inside the
-        // bounding sphere, so the box may be anywhere in the image).
-        let cones: Vec<Option<Cone>> = scene
+        // Bounding cones of every box seen from the camera: a tile may see a box only when it
+        // may see both.
+        let cones: Vec<[Option<Cone>; 2]> = scene
             .boxes
             .iter()
             .map(|b| {
-                let centre = camera_from_world * Point::from(b.pose.translation.vector);
-                let distance = centre.coords.norm();
-                let radius = 0.5 * b.size.norm();
-                (distance > radius * 1.001)
-                    .then(|| Cone::new(centre.coords / distance, (radius / distance).asin()))
+                let camera_from_box = camera_from_world * b.pose;
+                [sphere_cone(b, &camera_from_box), corner_cone(b, &camera_from_box)]
             })
             .collect();
         let up = camera_from_world.rotation * Vector3::z();
@@ -593,9 +590,12 @@ impl Renderer {
         let mut candidates = Vec::with_capacity(boxes.len());
         for tile in &self.tiles {
             candidates.clear();
-            candidates.extend(cones.iter().enumerate().filter_map(|(i, cone)| match cone {
-                None => Some(i),
-                Some(cone) => tile.may_see(cone).then_some(i),
+            candidates.extend(cones.iter().enumerate().filter_map(|(i, cones)| {
+                cones
+                    .iter()
+                    .flatten()
+                    .all(|cone| tile.may_see(cone))
+                    .then_some(i)
             }));
             // A tile that sees one surface only needs neither its rays nor the palette per pixel.
             let only = if candidates.is_empty() {
@@ -650,6 +650,43 @@ impl Renderer {
 }
 
 type Point = nalgebra::Point3<f64>;
+
+/// The cone from the camera around the bounding sphere of `b`, `camera_from_box` its pose in
+/// the camera frame; `None` when the camera is inside the sphere (the box may be anywhere in
+/// the image).
+fn sphere_cone(b: &SceneBox, camera_from_box: &Isometry3<f64>) -> Option<Cone> {
+    let centre = camera_from_box.translation.vector;
+    let distance = centre.norm();
+    let radius = 0.5 * b.size.norm();
+    (distance > radius * 1.001).then(|| Cone::new(centre / distance, (radius / distance).asin()))
+}
+
+/// A cone from the camera containing every ray that hits `b` (`camera_from_box` its pose in the
+/// camera frame), tighter than [`sphere_cone`] for a flat or long box or a near one: the cone
+/// around the directions to the corners of the box grown by far more than the f32 rounding of
+/// the slab test, which contains every direction to a point of the box (the box is the convex
+/// hull of its corners, and a cone narrower than a half-space is convex). `None` when the
+/// camera is inside the grown box or the cone would be a half-space or wider.
+fn corner_cone(b: &SceneBox, camera_from_box: &Isometry3<f64>) -> Option<Cone> {
+    let camera_in_box = camera_from_box.inverse().translation.vector;
+    let grow = 1e-4 * (1.0 + camera_in_box.norm() + b.size.norm());
+    let half = b.size.map(|s| 0.5 * s + grow);
+    if (0..3).all(|a| camera_in_box[a].abs() <= half[a]) {
+        return None;
+    }
+    let corners = [0u8, 1, 2, 3, 4, 5, 6, 7].map(|c| {
+        let sign = |bit: u8| if c & bit == 0 { -1.0 } else { 1.0 };
+        let corner = Vector3::new(sign(1) * half.x, sign(2) * half.y, sign(4) * half.z);
+        (camera_from_box * Point::from(corner)).coords.normalize()
+    });
+    let axis = corners.iter().sum::<Vector3<f64>>().try_normalize(1e-12)?;
+    let half_angle = corners
+        .iter()
+        .map(|c| c.dot(&axis).clamp(-1.0, 1.0).acos())
+        .fold(0.0, f64::max)
+        + 1e-4;
+    (half_angle < std::f64::consts::FRAC_PI_2 - 1e-3).then(|| Cone::new(axis, half_angle))
+}
 
 /// The byte ranges of a row-major RGB8 image of width `w` covered by runs of pixels whose ray
 /// exists, each run within one row.
