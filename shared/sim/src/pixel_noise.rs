@@ -74,12 +74,30 @@ impl PixelNoise {
         }
         let mut stream = NoiseStream::seeded(rng);
         let len = Self::pool_len(frame_len).div_ceil(BLOCK) * BLOCK;
+        let levels = noise.levels();
         noise.pool = Vec::with_capacity(len);
         while noise.pool.len() < len {
-            let block = noise.block(&mut stream);
+            let block = Self::block(&levels, &mut stream);
             noise.pool.extend_from_slice(&block);
         }
         noise
+    }
+
+    /// The noise level of every 16-bit uniform, indexed by the uniform: the lowest level plus
+    /// the number of thresholds the uniform reaches (one pass over the sorted thresholds, not a
+    /// search per drawn value).
+    fn levels(&self) -> Vec<i16> {
+        let mut levels = Vec::with_capacity(UNIFORM_LEVELS as usize);
+        let (mut level, mut passed) = (self.lowest, 0);
+        for u in 0..UNIFORM_LEVELS {
+            let shifted = (u as i32 - 32768) as i16;
+            while self.thresholds.get(passed).is_some_and(|&t| t <= shifted) {
+                passed += 1;
+                level += 1;
+            }
+            levels.push(level);
+        }
+        levels
     }
 
     /// Pool size for frames of `frame_len` values.
@@ -104,16 +122,12 @@ impl PixelNoise {
         self.lowest + self.thresholds.iter().filter(|&&t| shifted >= t).count() as i16
     }
 
-    /// The next [`BLOCK`] noise values of `stream`.
-    fn block(&self, stream: &mut NoiseStream) -> [i16; BLOCK] {
+    /// The next [`BLOCK`] noise values of `stream`, `levels` the level of every uniform
+    /// ([`PixelNoise::levels`]).
+    fn block(levels: &[i16], stream: &mut NoiseStream) -> [i16; BLOCK] {
         let words = stream.next_words();
-        let mut level = [self.lowest; BLOCK];
-        for (k, value) in level.iter_mut().enumerate() {
-            // u − 32768 of the k-th 16-bit piece.
-            let uniform = ((words[k / 4] >> (16 * (k % 4))) as u16 ^ 0x8000) as i16;
-            *value += self.thresholds.partition_point(|&t| t <= uniform) as i16;
-        }
-        level
+        // The k-th 16-bit piece of the words is the k-th uniform.
+        std::array::from_fn(|k| levels[usize::from((words[k / 4] >> (16 * (k % 4))) as u16)])
     }
 }
 
@@ -234,6 +248,18 @@ mod tests {
                 let p = (f64::from(u) + 0.5) / f64::from(UNIFORM_LEVELS);
                 let expected = (std * normal_quantile(p)).round() as i16;
                 assert_eq!(noise.level(u), expected, "σ {std}, u {u}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_table_of_levels_counts_the_thresholds_each_uniform_reaches() {
+        for std in [0.4, 1.0, 3.0] {
+            let noise = noise(std, 2);
+            let levels = noise.levels();
+            assert_eq!(levels.len(), UNIFORM_LEVELS as usize);
+            for u in 0..UNIFORM_LEVELS {
+                assert_eq!(levels[u as usize], noise.level(u), "σ {std}, u {u}");
             }
         }
     }
