@@ -606,9 +606,8 @@ impl Renderer {
             let rows = &self.ray_rows[tile.first_row..tile.first_row + (tile.y1 - tile.y0)];
             for (y, rays) in (tile.y0..tile.y1).zip(rows) {
                 // Every pixel of the tile row, black outside the image circle.
-                let mut colours = [0u32; LANES];
-                if let Some(surface) = only {
-                    colours = [palette[surface as usize]; LANES];
+                let colours = if let Some(surface) = only {
+                    [palette[surface as usize]; LANES]
                 } else {
                     let mut hits = if candidates.is_empty() {
                         RowHits::floor::<false>(rays, &floor_normal, camera_height)
@@ -618,10 +617,14 @@ impl Renderer {
                     for &i in &candidates {
                         hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                     }
-                    for k in 0..LANES {
-                        colours[k] = palette[hits.surface[k] as usize];
+                    // Often the whole row sees one surface: one palette look-up then.
+                    let first = hits.surface[0];
+                    if hits.surface.iter().all(|&s| s == first) {
+                        [palette[first as usize]; LANES]
+                    } else {
+                        hits.surface.map(|s| palette[s as usize])
                     }
-                }
+                };
                 let row = &mut image[(y * w + tile.x0) * 3..(y * w + tile.x1) * 3];
                 if let Ok(whole) = <&mut [u8; 3 * LANES]>::try_from(&mut *row) {
                     // Stored four bytes at a time, each overwriting the spare byte of the one
