@@ -36,38 +36,20 @@ impl<K, V> Default for SmallMap<K, V> {
     }
 }
 
-/// A key of a [`SmallMap`]: keys are unique by `==`, and [`Key::same`] is a cheaper test that
-/// finds most equal keys (never an unequal one).
-trait Key: Copy + PartialEq {
-    /// Whether `self` and `other` are surely equal (false when unsure).
-    fn same(&self, other: &Self) -> bool;
-}
-
-impl Key for ReaderId {
-    fn same(&self, other: &Self) -> bool {
-        self == other
-    }
-}
-
-impl<K: Key, V> SmallMap<K, V> {
-    /// The index of `key`'s entry: by the cheap test first, by `==` only when that finds none.
-    fn position(&self, key: &K) -> Option<usize> {
-        let mut keys = self.entries.iter().map(|(k, _)| k);
-        keys.clone()
-            .position(|k| k.same(key))
-            .or_else(|| keys.position(|k| k == key))
-    }
-
+impl<K: Copy + PartialEq, V> SmallMap<K, V> {
     fn get(&self, key: &K) -> Option<&V> {
-        self.position(key).map(|i| &self.entries[i].1)
+        self.entries.iter().find(|(k, _)| k == key).map(|(_, v)| v)
     }
 
     fn get_mut(&mut self, key: &K) -> Option<&mut V> {
-        self.position(key).map(|i| &mut self.entries[i].1)
+        self.entries
+            .iter_mut()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v)
     }
 
     fn get_or_insert_with(&mut self, key: K, value: impl FnOnce() -> V) -> &mut V {
-        let i = match self.position(&key) {
+        let i = match self.entries.iter().position(|(k, _)| *k == key) {
             Some(i) => i,
             None => {
                 self.entries.push((key, value()));
@@ -100,19 +82,6 @@ struct Name(&'static str);
 impl PartialEq for Name {
     fn eq(&self, other: &Self) -> bool {
         std::ptr::eq(self.0, other.0) || self.0 == other.0
-    }
-}
-
-impl Key for Name {
-    /// The same string in memory (a topic's name is usually one constant).
-    fn same(&self, other: &Self) -> bool {
-        std::ptr::eq(self.0, other.0)
-    }
-}
-
-impl Key for (Name, ReaderId) {
-    fn same(&self, other: &Self) -> bool {
-        self.0.same(&other.0) && self.1 == other.1
     }
 }
 
