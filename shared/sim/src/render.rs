@@ -154,6 +154,17 @@ struct Tile {
 }
 
 impl Tile {
+    /// Whether a box inside `cone` may be seen by a pixel of this tile: the angle between the
+    /// two cone axes is at most the sum of the half-angles. Compared through cosines (no `acos`
+    /// per tile and box), with a small margin so rounding never drops a box the exact test keeps.
+    #[inline]
+    fn may_see(&self, cone: &Cone) -> bool {
+        let own = &self.cone;
+        own.half_angle + cone.half_angle >= std::f64::consts::PI
+            || own.axis.dot(&cone.axis)
+                >= own.cos_half * cone.cos_half - own.sin_half * cone.sin_half - 1e-9
+    }
+
     /// What every pixel of this tile sees when no box is in view, if it is the same surface
     /// for all of them ([`RowHits::floor`]'s floor or background), the camera `height` (m) above
     /// the floor, `up` the floor's normal in the camera frame. Decided from the tile's cone with
@@ -204,26 +215,6 @@ impl Cone {
             cos_half: half_angle.cos(),
             sin_half: half_angle.sin(),
         }
-    }
-
-    /// The cone around `rays` (unit, f32 rays cast to f64), with a margin for their f32
-    /// rounding; `None` without rays.
-    fn around(rays: impl Iterator<Item = Vector3<f64>> + Clone) -> Option<Self> {
-        let axis = rays.clone().sum::<Vector3<f64>>().try_normalize(1e-12)?;
-        let half_angle = rays
-            .map(|r| r.dot(&axis).clamp(-1.0, 1.0).acos())
-            .fold(0.0, f64::max);
-        Some(Self::new(axis, half_angle + 1e-4))
-    }
-
-    /// Whether a ray in this cone may hit a box inside `other`: the angle between the two cone
-    /// axes is at most the sum of the half-angles. Compared through cosines (no `acos` per
-    /// pair), with a small margin so rounding never drops a box the exact test keeps.
-    #[inline]
-    fn meets(&self, other: &Cone) -> bool {
-        self.half_angle + other.half_angle >= std::f64::consts::PI
-            || self.axis.dot(&other.axis)
-                >= self.cos_half * other.cos_half - self.sin_half * other.sin_half - 1e-9
     }
 }
 
@@ -384,9 +375,6 @@ pub struct Renderer {
     /// The rays of every row of every tile of [`Renderer::tiles`], tile by tile: read in the
     /// order they are stored, one frame streams through them once.
     ray_rows: Vec<RayRow>,
-    /// The cone around the rays of each row of [`Renderer::ray_rows`] (`None`: the row is
-    /// wholly outside the image circle).
-    row_cones: Vec<Option<Cone>>,
     /// Byte ranges of the image rows of the tiles wholly outside the image circle (always black).
     blank: Vec<std::ops::Range<usize>>,
     tiles: Vec<Tile>,
@@ -423,7 +411,6 @@ impl Renderer {
             })
             .collect();
         let mut ray_rows = Vec::new();
-        let mut row_cones = Vec::new();
         let mut tiles = Vec::new();
         let mut blank = Vec::new();
         for y0 in (0..h).step_by(TILE) {
@@ -434,10 +421,14 @@ impl Renderer {
                         .flat_map(move |y| (x0..x1).map(move |x| y * w + x))
                         .filter_map(|i| rays[i].map(|r| r.cast::<f64>()))
                 };
-                let Some(cone) = Cone::around(tile_rays()) else {
+                let sum: Vector3<f64> = tile_rays().sum();
+                let Some(axis) = sum.try_normalize(1e-12) else {
                     blank.extend((y0..y1).map(|y| (y * w + x0) * 3..(y * w + x1) * 3));
                     continue;
                 };
+                let half_angle = tile_rays()
+                    .map(|r| r.dot(&axis).clamp(-1.0, 1.0).acos())
+                    .fold(0.0, f64::max);
                 tiles.push(Tile {
                     x0,
                     y0,
@@ -445,15 +436,9 @@ impl Renderer {
                     y1,
                     first_row: ray_rows.len(),
                     full: tile_rays().count() == (x1 - x0) * (y1 - y0),
-                    cone,
+                    // Margin for f32 rounding of the rays.
+                    cone: Cone::new(axis, half_angle + 1e-4),
                 });
-                row_cones.extend((y0..y1).map(|y| {
-                    Cone::around(
-                        rays[y * w + x0..y * w + x1]
-                            .iter()
-                            .filter_map(|r| r.map(|r| r.cast::<f64>())),
-                    )
-                }));
                 ray_rows.extend((y0..y1).map(|y| {
                     let mut row = RayRow::default();
                     for (k, ray) in rays[y * w + x0..y * w + x1].iter().enumerate() {
@@ -470,7 +455,6 @@ impl Renderer {
         Self {
             model,
             ray_rows,
-            row_cones,
             blank,
             tiles,
             noise: PixelNoise::new(pixel_noise_std, inside_len, rng),
@@ -610,7 +594,7 @@ impl Renderer {
                 cones
                     .iter()
                     .flatten()
-                    .all(|cone| tile.cone.meets(cone))
+                    .all(|cone| tile.may_see(cone))
                     .then_some(i)
             }));
             // A tile that sees one surface only needs neither its rays nor the palette per pixel.
@@ -619,9 +603,8 @@ impl Renderer {
             } else {
                 None
             };
-            let rows = tile.first_row..tile.first_row + (tile.y1 - tile.y0);
-            let rows = self.ray_rows[rows.clone()].iter().zip(&self.row_cones[rows]);
-            for (y, (rays, row_cone)) in (tile.y0..tile.y1).zip(rows) {
+            let rows = &self.ray_rows[tile.first_row..tile.first_row + (tile.y1 - tile.y0)];
+            for (y, rays) in (tile.y0..tile.y1).zip(rows) {
                 // Every pixel of the tile row, black outside the image circle.
                 let colours = if let Some(surface) = only {
                     [palette[surface as usize]; LANES]
@@ -631,17 +614,15 @@ impl Renderer {
                     } else {
                         RowHits::floor::<true>(rays, &floor_normal, camera_height)
                     };
-                    // The tile's boxes that the row's own, narrower cone may see.
-                    let seen = candidates.iter().filter(|&&i| {
-                        row_cone.is_some_and(|row| cones[i].iter().flatten().all(|c| row.meets(c)))
-                    });
-                    for &i in seen {
+                    for &i in &candidates {
                         hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                     }
-                    // Often the whole row sees one surface: one palette look-up then.
-                    let first = hits.surface[0];
-                    if hits.surface.iter().all(|&s| s == first) {
-                        [palette[first as usize]; LANES]
+                    // Often the whole row sees one surface: one palette look-up then (told by
+                    // the least and greatest surface, which read all lanes at once).
+                    let least = hits.surface.iter().fold(u32::MAX, |a, &s| a.min(s));
+                    let greatest = hits.surface.iter().fold(0, |a, &s| a.max(s));
+                    if least == greatest {
+                        [palette[least as usize]; LANES]
                     } else {
                         hits.surface.map(|s| palette[s as usize])
                     }
