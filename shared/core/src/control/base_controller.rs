@@ -546,8 +546,9 @@ impl KeptRoute {
     /// one) and returns the base's distance from it, m.
     fn track(&mut self, base: &BasePose) -> f64 {
         let at = Vector2::new(base.x, base.y);
+        let sampler = self.path.sampler();
         let distance = |s: f64| {
-            let p = self.path.sample(s);
+            let p = sampler.sample(s);
             (Vector2::new(p.x, p.y) - at).norm()
         };
         let steps = (TRACK_WINDOW / TRACK_STEP) as usize;
@@ -1379,11 +1380,12 @@ impl BaseController {
     fn clear_path(&self, path: &DubinsPath, obstacles: &[Vector2<f64>]) -> bool {
         let length = path.length();
         let steps = (length / CLEARANCE_STEP).ceil() as usize;
+        let sampler = path.sampler();
         self.clear_poses(
             &path.start,
             length,
             obstacles,
-            (0..=steps).map(|k| path.sample(k as f64 * CLEARANCE_STEP)),
+            (0..=steps).map(|k| sampler.sample(k as f64 * CLEARANCE_STEP)),
         )
     }
 

@@ -176,7 +176,7 @@ impl DubinsPath {
     pub fn sample(&self, distance: f64) -> BasePose {
         let mut pose = self.start;
         let mut left = distance.max(0.0);
-        for (kind, length) in std::iter::once((Segment::Straight, self.lead)).chain(self.segments) {
+        for (kind, length) in self.pieces() {
             let s = left.min(length);
             pose = advance(&pose, kind, s, self.radius);
             left -= s;
@@ -185,6 +185,50 @@ impl DubinsPath {
             }
         }
         advance(&pose, Segment::Straight, left, self.radius)
+    }
+
+    /// A sampler of many poses along the path: each bit for bit [`DubinsPath::sample`]'s, the
+    /// poses at the joints between the pieces worked out once rather than per sample.
+    pub fn sampler(&self) -> PathSampler<'_> {
+        let mut joints = [self.start; 5];
+        for (i, (kind, length)) in self.pieces().enumerate() {
+            joints[i + 1] = advance(&joints[i], kind, length, self.radius);
+        }
+        PathSampler { path: self, joints }
+    }
+
+    /// The straight lead and the three segments, in order.
+    fn pieces(&self) -> impl Iterator<Item = (Segment, f64)> {
+        std::iter::once((Segment::Straight, self.lead)).chain(self.segments)
+    }
+}
+
+/// Poses along a [`DubinsPath`] ([`DubinsPath::sampler`]).
+#[derive(Debug, Clone, Copy)]
+pub struct PathSampler<'a> {
+    path: &'a DubinsPath,
+    /// The start and the pose at the end of each piece (lead, then the three segments).
+    joints: [BasePose; 5],
+}
+
+impl PathSampler<'_> {
+    /// [`DubinsPath::sample`] at `distance`, m: the same steps, but a piece driven whole (the
+    /// same length, to the bit) ends at its stored joint.
+    pub fn sample(&self, distance: f64) -> BasePose {
+        let mut left = distance.max(0.0);
+        for (i, (kind, length)) in self.path.pieces().enumerate() {
+            let s = left.min(length);
+            let pose = if s.to_bits() == length.to_bits() {
+                self.joints[i + 1]
+            } else {
+                advance(&self.joints[i], kind, s, self.path.radius)
+            };
+            left -= s;
+            if left <= 0.0 {
+                return pose;
+            }
+        }
+        advance(&self.joints[4], Segment::Straight, left, self.path.radius)
     }
 }
 
@@ -298,6 +342,36 @@ mod tests {
         // Half a turn of radius 0.5 and the 1 m between the two half-circles' ends.
         assert!((behind.length() - (std::f64::consts::PI * 0.5 + 1.0)).abs() < 1e-6);
         assert_eq!(behind.segments[0].0, Segment::Left);
+    }
+
+    #[test]
+    fn the_sampler_gives_the_poses_sample_gives_to_the_bit() {
+        let start = BasePose::new(0.4, -1.1, 2.2);
+        let goals = [
+            BasePose::new(3.0, 1.0, -0.5),
+            BasePose::new(-1.0, 0.5, 1.0),
+            BasePose::new(0.4, -1.1, 2.2),
+        ];
+        for goal in goals {
+            for path in DubinsPath::words_after(&start, 0.35, &goal, 0.6) {
+                let sampler = path.sampler();
+                for k in -3..700 {
+                    let s = k as f64 * 0.0137;
+                    let (a, b) = (path.sample(s), sampler.sample(s));
+                    assert_eq!(
+                        [a.x, a.y, a.yaw].map(f64::to_bits),
+                        [b.x, b.y, b.yaw].map(f64::to_bits),
+                        "{s} m along {path:?}"
+                    );
+                }
+                // Exactly at the joints too.
+                let mut at = 0.0;
+                for (_, length) in path.pieces() {
+                    at += length;
+                    assert_eq!(path.sample(at), sampler.sample(at));
+                }
+            }
+        }
     }
 
     #[test]
