@@ -581,7 +581,10 @@ impl Renderer {
             .iter()
             .map(|b| {
                 let camera_from_box = camera_from_world * b.pose;
-                [sphere_cone(b, &camera_from_box), corner_cone(b, &camera_from_box)]
+                [
+                    sphere_cone(b, &camera_from_box),
+                    corner_cone(b, &camera_from_box),
+                ]
             })
             .collect();
         let up = camera_from_world.rotation * Vector3::z();
