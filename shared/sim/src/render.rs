@@ -177,7 +177,7 @@ impl Tile {
         if !self.full {
             return None;
         }
-        if !(height > 0.0) {
+        if height.is_nan() || height <= 0.0 {
             return Some(SURFACE_BACKGROUND);
         }
         let cone = &self.cone;
