@@ -15,6 +15,8 @@
 //! generator ([`NoiseStream`]) seeded from the camera's seeded ChaCha8 stream, so everything is
 //! reproducible from the trial seed.
 
+use std::ops::Range;
+
 use rand::{Rng, RngExt};
 
 /// Generator steps per block of noise values.
@@ -39,6 +41,9 @@ pub(crate) struct PixelNoise {
     thresholds: Vec<i16>,
     /// The pre-drawn values; empty when there is no noise.
     pool: Vec<i16>,
+    /// The same values as bytes when every one fits in one (any σ of a real camera), so that
+    /// a frame reads half the memory; empty otherwise.
+    narrow: Vec<i8>,
 }
 
 impl PixelNoise {
@@ -49,6 +54,7 @@ impl PixelNoise {
             lowest: 0,
             thresholds: Vec::new(),
             pool: Vec::new(),
+            narrow: Vec::new(),
         };
         if std.is_nan() || std <= 0.0 {
             return noise;
@@ -80,6 +86,9 @@ impl PixelNoise {
             let block = Self::block(&levels, &mut stream);
             noise.pool.extend_from_slice(&block);
         }
+        if let Ok(narrow) = noise.pool.iter().map(|&v| i8::try_from(v)).collect() {
+            noise.narrow = narrow;
+        }
         noise
     }
 
@@ -107,12 +116,39 @@ impl PixelNoise {
 
     /// The noise values of one frame of `frame_len` values (at most the pool's frame length), at
     /// an offset drawn from `rng`; `None` (and no draw) without noise.
+    #[cfg(test)]
     pub(crate) fn frame<R: Rng + ?Sized>(&self, frame_len: usize, rng: &mut R) -> Option<&[i16]> {
-        if self.pool.is_empty() {
-            return None;
-        }
-        let offset = rng.random_range(0..=self.pool.len() - frame_len);
+        let offset = self.offset(frame_len, rng)?;
         Some(&self.pool[offset..offset + frame_len])
+    }
+
+    /// Where one frame of `frame_len` values starts in the pool, drawn from `rng`; `None` (and
+    /// no draw) without noise.
+    #[inline(always)]
+    fn offset<R: Rng + ?Sized>(&self, frame_len: usize, rng: &mut R) -> Option<usize> {
+        (!self.pool.is_empty()).then(|| rng.random_range(0..=self.pool.len() - frame_len))
+    }
+
+    /// Adds one frame's noise (the values [`PixelNoise::frame`] draws, in order) to the byte
+    /// ranges `runs` of `image`, `frame_len` bytes in all; nothing (and no draw) without noise.
+    /// Always inlined, so it is compiled for the target features of its caller.
+    #[inline(always)]
+    pub(crate) fn add_frame<R: Rng + ?Sized>(
+        &self,
+        image: &mut [u8],
+        runs: &[Range<usize>],
+        frame_len: usize,
+        rng: &mut R,
+    ) {
+        let Some(offset) = self.offset(frame_len, rng) else {
+            return;
+        };
+        let frame = offset..offset + frame_len;
+        if self.narrow.is_empty() {
+            add_runs(image, runs, &self.pool[frame]);
+        } else {
+            add_runs(image, runs, &self.narrow[frame]);
+        }
     }
 
     /// The noise level of the uniform `u` (< 65536).
@@ -131,11 +167,21 @@ impl PixelNoise {
     }
 }
 
+/// Adds `noise` to the byte ranges `runs` of `image`, in order.
+#[inline(always)]
+fn add_runs<T: Copy + Into<i16>>(image: &mut [u8], runs: &[Range<usize>], mut noise: &[T]) {
+    for run in runs {
+        let (values, rest) = noise.split_at(run.len());
+        add_noise(&mut image[run.clone()], values);
+        noise = rest;
+    }
+}
+
 /// Adds `noise` to `bytes` value by value, clamped to 0..=255 (compiles to SIMD).
-#[inline]
-pub(crate) fn add_noise(bytes: &mut [u8], noise: &[i16]) {
-    for (byte, value) in bytes.iter_mut().zip(noise) {
-        *byte = (i16::from(*byte) + value).clamp(0, 255) as u8;
+#[inline(always)]
+fn add_noise<T: Copy + Into<i16>>(bytes: &mut [u8], noise: &[T]) {
+    for (byte, &value) in bytes.iter_mut().zip(noise) {
+        *byte = (i16::from(*byte) + value.into()).clamp(0, 255) as u8;
     }
 }
 
@@ -340,9 +386,27 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_adds_the_values_it_draws_whether_the_pool_is_narrow_or_not() {
+        for (std, narrow) in [(1.0, true), (60.0, false)] {
+            let noise = noise(std, 8);
+            assert_eq!(!noise.narrow.is_empty(), narrow, "σ {std}");
+            let runs = [3..40, 52..300, 310..1000];
+            let image: Vec<u8> = (0..1200).map(|i| (i * 37 % 256) as u8).collect();
+            let (mut drawn, mut expected) = (image.clone(), image.clone());
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            noise.add_frame(&mut drawn, &runs, 985, &mut rng);
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            let values = noise.frame(985, &mut rng).expect("noise on");
+            add_runs(&mut expected, &runs, values);
+            assert_eq!(drawn, expected, "σ {std}");
+            assert_ne!(drawn, image);
+        }
+    }
+
+    #[test]
     fn values_clamp_to_the_byte_range() {
         let mut bytes = [0, 3, 250, 255, 128];
-        add_noise(&mut bytes, &[-5, -5, 9, 1, -2]);
+        add_noise(&mut bytes, &[-5i16, -5, 9, 1, -2]);
         assert_eq!(bytes, [0, 0, 255, 255, 126]);
     }
 }

@@ -15,7 +15,7 @@ use motm_core::camera::{CameraCalibration, CameraConfig, CameraModel};
 use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
 use rand::{Rng, RngExt, SeedableRng};
 
-use crate::pixel_noise::{PixelNoise, add_noise};
+use crate::pixel_noise::PixelNoise;
 use rand_chacha::ChaCha8Rng;
 
 /// Colour of the cube to pick: saturated red.
@@ -647,13 +647,8 @@ impl Renderer {
             }
         }
         let inside_len = self.inside_runs.iter().map(|run| run.len()).sum();
-        if let Some(mut noise) = self.noise.frame(inside_len, rng) {
-            for run in &self.inside_runs {
-                let (values, rest) = noise.split_at(run.len());
-                add_noise(&mut image[run.clone()], values);
-                noise = rest;
-            }
-        }
+        self.noise
+            .add_frame(image, &self.inside_runs, inside_len, rng);
     }
 }
 
