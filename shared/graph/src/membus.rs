@@ -253,6 +253,26 @@ impl MemBus {
 
     /// The visible samples `reader` has not read yet on `topic`, validated, oldest first.
     pub fn read<T: Message>(&mut self, topic: Topic<T>, reader: ReaderId) -> Vec<Arc<T>> {
+        let mut out = Vec::new();
+        self.read_each(topic, reader, |sample| out.push(Arc::clone(sample)));
+        out
+    }
+
+    /// The newest of the samples [`MemBus::read`] would return (the same reading, without
+    /// collecting them).
+    pub fn read_newest<T: Message>(&mut self, topic: Topic<T>, reader: ReaderId) -> Option<Arc<T>> {
+        let mut newest = None;
+        self.read_each(topic, reader, |sample| newest = Some(Arc::clone(sample)));
+        newest
+    }
+
+    /// [`MemBus::read`], handing each sample to `each` in turn.
+    fn read_each<T: Message>(
+        &mut self,
+        topic: Topic<T>,
+        reader: ReaderId,
+        mut each: impl FnMut(&Arc<T>),
+    ) {
         let now = self.now_ns;
         let delay = self.delay(topic.name(), reader);
         let channel = self.channel(topic);
@@ -263,7 +283,6 @@ impl MemBus {
         });
         let mut next = cursor.next;
         let mut last_seq = cursor.last_seq;
-        let mut out = Vec::new();
         let mut rejections = Vec::new();
         for (published, index, sample) in &channel.samples {
             if *index < next {
@@ -276,7 +295,7 @@ impl MemBus {
             match sample.validate(now, last_seq) {
                 Ok(()) => {
                     last_seq = Some(sample.header().seq);
-                    out.push(Arc::clone(sample));
+                    each(sample);
                 }
                 Err(rejection) => rejections.push(rejection),
             }
@@ -287,7 +306,6 @@ impl MemBus {
         if let Some(last) = rejections.pop() {
             self.last_rejection = Some(last);
         }
-        out
     }
 
     /// The bus as `reader`'s [`Source`] and as a [`Sink`].
@@ -343,13 +361,13 @@ impl MemPort<'_> {
 
 impl Source for MemPort<'_> {
     fn latest<T: Message>(&mut self, topic: Topic<T>, slot: &mut Option<T>) {
-        if let Some(newest) = self.bus.read(topic, self.reader).pop() {
+        if let Some(newest) = self.bus.read_newest(topic, self.reader) {
             *slot = Some(*newest);
         }
     }
 
     fn latest_shared<T: Message>(&mut self, topic: Topic<T>, slot: &mut Option<Arc<T>>) {
-        if let Some(newest) = self.bus.read(topic, self.reader).pop() {
+        if let Some(newest) = self.bus.read_newest(topic, self.reader) {
             *slot = Some(newest);
         }
     }
