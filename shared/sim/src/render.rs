@@ -621,11 +621,14 @@ impl Renderer {
                         hits = boxes[i].hit_row(rays, &hits, SURFACE_FIRST_BOX + 6 * i as u32);
                     }
                     // Often the whole row sees one surface: one palette look-up then (told by
-                    // the least and greatest surface, which read all lanes at once).
-                    let least = hits.surface.iter().fold(u32::MAX, |a, &s| a.min(s));
-                    let greatest = hits.surface.iter().fold(0, |a, &s| a.max(s));
-                    if least == greatest {
-                        [palette[least as usize]; LANES]
+                    // a lane loop over all lanes, which compiles to whole-vector operations).
+                    let first = hits.surface[0];
+                    let mut differ = 0;
+                    for k in 0..LANES {
+                        differ |= hits.surface[k] ^ first;
+                    }
+                    if differ == 0 {
+                        [palette[first as usize]; LANES]
                     } else {
                         hits.surface.map(|s| palette[s as usize])
                     }
