@@ -23,7 +23,9 @@
 //!    line through the current ξ_C: a moving target moves its line, and the base follows it.
 //!    A base that falls off the line by twice the tolerance (the target moved too far, the base
 //!    slipped) plans again: if no short route is left, the route comes around for a second
-//!    approach.
+//!    approach. Before it is on the run-in, a kept plan's route planned again may turn at
+//!    `tight_turn_radius` where the wide radius would need a loop (the run-in's start moved
+//!    behind the base's turn onto it).
 //! 4. **Passed latch.** Set when the base is within r_C of the target, or the target is abeam or
 //!    behind within r_C + `pass_margin`; cleared when the task index changes. Once passed, t_R
 //!    is 0 and the base drives the route to the next target's pass plan, chosen the same way
@@ -103,6 +105,12 @@ pub struct BaseControllerConfig {
     /// base's yaw-rate limit). 0.6 m: turning round a target at r_C, the arc's centre is the
     /// target, and the base's corners swing out by a few centimetres only.
     pub min_turn_radius: f64,
+    /// Turning radius, m, a kept plan's route may use instead of `min_turn_radius` where that
+    /// one would need a loop (also at least v_F over the yaw-rate limit; 0 turns it off). A
+    /// target first seen 0.15 m from where it was expected moves the start of the run-in behind
+    /// the base's turn onto it; at the wide radius only a loop reached it, and the loop, costed
+    /// afresh, lost the plan to a pass of the far side of a row.
+    pub tight_turn_radius: f64,
     /// Length of the straight run-in that ends at ξ_C, m: the arm's reach happens on it.
     pub run_in: f64,
     /// Length of the straight run-out after ξ_C, m: the grasp and the lift, the drop or the
@@ -185,6 +193,7 @@ impl Default for BaseControllerConfig {
             closest_approach_radius: 0.6,
             pass_clearance: 0.1,
             min_turn_radius: 0.6,
+            tight_turn_radius: 0.35,
             run_in: 1.0,
             run_out: 0.4,
             look_ahead: 0.4,
@@ -239,6 +248,7 @@ impl BaseControllerConfig {
             ),
             ("pass_clearance", non_negative(self.pass_clearance)),
             ("min_turn_radius", positive(self.min_turn_radius)),
+            ("tight_turn_radius", non_negative(self.tight_turn_radius)),
             ("run_in", non_negative(self.run_in)),
             ("run_out", non_negative(self.run_out)),
             ("look_ahead", positive(self.look_ahead)),
@@ -296,7 +306,7 @@ impl BaseControllerConfig {
                      yaw_acceleration_fraction, yaw_acceleration_per_speed, reactive_slow_distance > 0; \
                      run_in, run_out, turn_cost, replan_margin, commit_distance, obstacle_radius, \
                      clearance, pass_margin, linger_stop_distance, pass_clearance, pass_timeout, \
-                     guard_horizon ≥ 0; 0 ≤ linger_bearing_margin < π/2; \
+                     guard_horizon, tight_turn_radius ≥ 0; 0 ≤ linger_bearing_margin < π/2; \
                      1 ≤ heading_candidates ≤ 360; 0 < linger_speed_fraction ≤ 1)",
                 ));
             }
@@ -667,6 +677,17 @@ impl BaseController {
     pub fn turn_radius(&self) -> f64 {
         self.config
             .min_turn_radius
+            .max(self.speed() / self.model.max_yaw_rate.max(1e-6))
+    }
+
+    /// The tight turning radius of a kept plan's re-route: `tight_turn_radius`, or more if the
+    /// yaw-rate limit needs it at the forward speed (0: off).
+    fn tight_turn_radius(&self) -> f64 {
+        if self.config.tight_turn_radius <= 0.0 {
+            return 0.0;
+        }
+        self.config
+            .tight_turn_radius
             .max(self.speed() / self.model.max_yaw_rate.max(1e-6))
     }
 
@@ -1060,7 +1081,7 @@ impl BaseController {
                 // route driven (and t_R along it) is the one to where the target is now.
                 let planned_at = route.planned_at;
                 approach.route = Some(KeptRoute {
-                    path: self.route_to(base, &plan, target, radius, obstacles),
+                    path: self.reroute(base, &plan, target, radius, obstacles),
                     progress: 0.0,
                     target,
                     planned_at,
@@ -1072,7 +1093,7 @@ impl BaseController {
                 let rest = DubinsPath::shortest(
                     &route.path.sample(route.progress),
                     &route.path.sample(route.path.length()),
-                    radius,
+                    route.path.radius,
                 );
                 kept_cost = Some(
                     route.path.length() - route.progress
@@ -1159,6 +1180,29 @@ impl BaseController {
             &plan.pose(target, self.config.closest_approach_radius),
             -self.config.run_in,
         )
+    }
+
+    /// The route from `base` to the start of a kept `plan`'s run-in: [`Self::route_to`], or
+    /// the same at the tight turning radius ([`BaseControllerConfig::tight_turn_radius`]) where
+    /// that one is clear and saves a loop (turns less by more than π).
+    fn reroute(
+        &self,
+        base: &BasePose,
+        plan: &PassPlan,
+        target: Vector2<f64>,
+        radius: f64,
+        obstacles: &[Vector2<f64>],
+    ) -> DubinsPath {
+        let wide = self.route_to(base, plan, target, radius, obstacles);
+        let tight_radius = self.tight_turn_radius();
+        if tight_radius <= 0.0 || tight_radius >= radius {
+            return wide;
+        }
+        let start = self.run_in_start(plan, target);
+        match self.clear_route(base, &start, tight_radius, obstacles) {
+            Some(tight) if tight.turning() + std::f64::consts::PI < wide.turning() => tight,
+            _ => wide,
+        }
     }
 
     /// The route from `base` to the start of `plan`'s run-in: the shortest clear one, or the
@@ -2100,6 +2144,45 @@ mod tests {
         );
         // The limit spreads the turn, it does not stop it: the base ends up heading back.
         assert!(base.x < 2.0, "the base never turned round: {base:?}");
+    }
+
+    #[test]
+    fn a_kept_plan_whose_run_in_start_moved_behind_the_turn_is_rerouted_tight_without_a_loop() {
+        // The base heads west along y = 2.01 toward a pass of the target heading south, the
+        // target on its right; the target was just seen 0.17 m north of where it was expected,
+        // so the run-in's start (0.6, 1.605) lies inside the base's turn at 0.6 m.
+        let controller = BaseController::new(
+            BaseControllerConfig {
+                forward_speed: 0.3,
+                ..BaseControllerConfig::default()
+            },
+            frankie_like(),
+        );
+        let base = BasePose::new(1.13, 2.01, std::f64::consts::PI);
+        let target = Vector2::new(0.0, 0.605);
+        let plan = PassPlan {
+            side: PassSide::Left,
+            heading: -FRAC_PI_2,
+        };
+        let radius = controller.turn_radius();
+        let wide = controller.route_to(&base, &plan, target, radius, &[]);
+        assert!(wide.turning() > 1.5 * std::f64::consts::PI, "{wide:?}");
+        let route = controller.reroute(&base, &plan, target, radius, &[]);
+        assert!(route.turning() < std::f64::consts::PI, "{route:?}");
+        assert!(route.radius < radius && route.radius >= 0.35);
+        let end = route.sample(route.length());
+        let start = controller.run_in_start(&plan, target);
+        assert!((end.x - start.x).abs() < 1e-6 && (end.y - start.y).abs() < 1e-6);
+        // Off, the route is the wide one.
+        let off = BaseController::new(
+            BaseControllerConfig {
+                forward_speed: 0.3,
+                tight_turn_radius: 0.0,
+                ..BaseControllerConfig::default()
+            },
+            frankie_like(),
+        );
+        assert_eq!(off.reroute(&base, &plan, target, radius, &[]), wide);
     }
 
     #[test]
