@@ -177,8 +177,8 @@ impl SimWorld {
         self.status
     }
 
-    /// The mission ended having given a task up: the trial fails with `task_failed` at the
-    /// next step (unless it is already decided).
+    /// The mission ended having given a task up, or without every object where it belongs:
+    /// the trial fails with `task_failed` at the next step (unless it is already decided).
     pub fn mission_gave_up(&mut self) {
         self.world.mission_gave_up();
     }

@@ -61,7 +61,14 @@ pub struct SimWorldTask {
     last_status: TrialStatus,
     render: bool,
     arm_qd: Vec<f64>,
+    /// When the mission was first seen complete, ns.
+    complete_since_ns: Option<u64>,
 }
+
+/// A mission complete this long without the trial decided ended with a task not done, s: the
+/// last drop's cube has landed well within it. A pick that took a neighbouring cube for its own
+/// completes the mission with a cube left behind, and the trial ran to its timeout.
+const MISSION_END_GRACE_S: f64 = 5.0;
 
 impl SimWorldTask {
     /// The world `sim`, publishing the truth every `truth_every` physics steps and running at
@@ -71,6 +78,7 @@ impl SimWorldTask {
         Self {
             last_status: sim.status(),
             arm_qd: Vec::with_capacity(sim.command().arm_qd.len()),
+            complete_since_ns: None,
             sim,
             period_ns: period_ns.max(1),
             truth_every: truth_every.max(1),
@@ -110,11 +118,13 @@ impl Task for SimWorldTask {
 
     fn step(&mut self, now_ns: u64, inputs: &SimWorldInputs) -> SimWorldOutputs {
         let origin = *self.origin_ns.get_or_insert(now_ns);
-        if inputs.mission.as_ref().is_some_and(|m| {
-            m.failed_tasks > 0
-                && msgs::TaskPhase::try_from(m.phase) == Ok(msgs::TaskPhase::Complete)
-        }) {
-            self.sim.mission_gave_up();
+        if let Some(mission) = &inputs.mission
+            && msgs::TaskPhase::try_from(mission.phase) == Ok(msgs::TaskPhase::Complete)
+        {
+            let since = *self.complete_since_ns.get_or_insert(now_ns);
+            if mission.failed_tasks > 0 || age(now_ns, since) >= MISSION_END_GRACE_S {
+                self.sim.mission_gave_up();
+            }
         }
         self.arm_qd.clear();
         let arm = inputs.arm.as_ref().map(|c| {

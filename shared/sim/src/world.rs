@@ -388,8 +388,8 @@ impl World {
         self.outcome
     }
 
-    /// The mission ended having given a task up: the trial fails with
-    /// [`FailureReason::TaskFailed`] (unless it is already decided).
+    /// The mission ended having given a task up, or without every object where it belongs:
+    /// the trial fails with [`FailureReason::TaskFailed`] (unless it is already decided).
     pub fn mission_gave_up(&mut self) {
         self.fail(FailureReason::TaskFailed);
     }

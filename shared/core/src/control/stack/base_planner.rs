@@ -44,6 +44,8 @@ pub struct BasePlannerCycle {
     /// The odometry offset the controller's layout was last corrected with.
     layout_offset: [f64; 3],
     refused: u64,
+    /// The mission is complete and the base has reached the run-out point: it stands.
+    stopped: bool,
 }
 
 impl BasePlannerCycle {
@@ -57,6 +59,7 @@ impl BasePlannerCycle {
             layout: layout.to_vec(),
             layout_offset: [0.0; 3],
             refused: 0,
+            stopped: false,
         }
     }
 
@@ -65,8 +68,11 @@ impl BasePlannerCycle {
         self.refused
     }
 
-    /// One cycle (after the last task, toward the run-out point): `None` when the input was
-    /// not finite (counted in [`BasePlannerCycle::refused`]).
+    /// One cycle (after the last task, toward the run-out point, where the base stops: once
+    /// the mission is complete and the base is within r_C + `pass_margin` of it, the command
+    /// is to stand, and stays so): `None` when the input was not finite (counted in
+    /// [`BasePlannerCycle::refused`]). Without the stop, a base that had reached the run-out
+    /// point circled it for as long as the stack ran.
     pub fn step(&mut self, input: &BasePlannerInput) -> Option<BasePlannerOutput> {
         let task_index = input.mission.base_task_index();
         let offset = input.mission.odometry_offset;
@@ -91,7 +97,20 @@ impl BasePlannerCycle {
                 .map(|p| world_to_odometry(&offset, p)),
             dt: input.dt,
         }) {
-            Ok(plan) => Some(BasePlannerOutput { task_index, plan }),
+            Ok(mut plan) => {
+                let config = self.controller.config();
+                let to_run_out = (input.mission.next_waypoint.xy()
+                    - nalgebra::Vector2::new(input.base.x, input.base.y))
+                .norm();
+                self.stopped = input.mission.is_complete()
+                    && (self.stopped
+                        || plan.passed
+                            && to_run_out <= config.closest_approach_radius + config.pass_margin);
+                if self.stopped {
+                    plan.command = crate::types::BaseVelocity { v: 0.0, omega: 0.0 };
+                }
+                Some(BasePlannerOutput { task_index, plan })
+            }
             Err(_) => {
                 self.refused += 1;
                 None
