@@ -27,7 +27,8 @@ ports! {
         latest base: msgs::BaseVelocityCommand = topics::HW_BASE_COMMAND,
         /// The arm driver's gripper command.
         latest gripper: msgs::GripperCommand = topics::HW_GRIPPER_COMMAND,
-        /// The mission: once it is complete with a task given up, the trial has failed.
+        /// The mission: once it is complete with a task given up, or complete for
+        /// `MISSION_END_GRACE_S` with the trial undecided, the trial has failed.
         latest mission: msgs::MissionState = topics::MISSION_STATE,
     }
 }
@@ -187,5 +188,67 @@ impl Task for SimWorldTask {
             image,
             truth,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runner::RunnerConfig;
+    use crate::scenario::Scenario;
+    use crate::sim_world::{SimWorldConfig, TrialStatus};
+    use motm_core::robot::Robot;
+    use std::path::Path;
+
+    /// The world of exp1-dynamic told, every 10 ms for `seconds`, that its mission is complete
+    /// with `failed_tasks` given up; the trial's status after each second.
+    fn told_complete(failed_tasks: u32, seconds: usize) -> Vec<TrialStatus> {
+        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let robot = Robot::load(&config, "frankie").unwrap();
+        let scenario = Scenario::from_file(&config.join("scenarios/exp1-dynamic.toml")).unwrap();
+        let runner = RunnerConfig::default();
+        let sim = SimWorld::new(&robot, &scenario, 1, &runner, SimWorldConfig::default()).unwrap();
+        let mut task = SimWorldTask::new(sim, 1, 20);
+        task.render = false;
+        let mut statuses = Vec::new();
+        for k in 0..=(100 * seconds as u64) {
+            let now_ns = k * 10_000_000;
+            let inputs = SimWorldInputs {
+                mission: Some(msgs::MissionState {
+                    header: msgs::Header::new(now_ns, k),
+                    task_index: 2,
+                    task_count: 2,
+                    task_kind: 1,
+                    phase: msgs::TaskPhase::Complete as u32,
+                    current_target: [0.0; 3],
+                    next_target: [0.0; 3],
+                    has_next: 0,
+                    failed_tasks,
+                    odometry_offset: [0.0; 3],
+                }),
+                ..SimWorldInputs::default()
+            };
+            task.step(now_ns, &inputs);
+            if k % 100 == 0 {
+                statuses.push(task.sim().status());
+            }
+        }
+        statuses
+    }
+
+    #[test]
+    fn a_mission_complete_without_every_object_placed_fails_the_trial_after_a_grace() {
+        let failed = TrialStatus::Decided(crate::world::Outcome::Failure(
+            crate::world::FailureReason::TaskFailed,
+        ));
+        let statuses = told_complete(0, 6);
+        // Within the grace the last drop's cube may still be falling: undecided.
+        assert!(
+            statuses[..5].iter().all(|s| *s == TrialStatus::Running),
+            "{statuses:?}"
+        );
+        assert_eq!(statuses[6], failed);
+        // With a task given up it fails at once.
+        assert_eq!(told_complete(1, 1)[1], failed);
     }
 }

@@ -68,11 +68,12 @@ impl BasePlannerCycle {
         self.refused
     }
 
-    /// One cycle (after the last task, toward the run-out point, where the base stops: once
-    /// the mission is complete and the base is within r_C + `pass_margin` of it, the command
-    /// is to stand, and stays so): `None` when the input was not finite (counted in
-    /// [`BasePlannerCycle::refused`]). Without the stop, a base that had reached the run-out
-    /// point circled it for as long as the stack ran.
+    /// One cycle (after the last task, toward the run-out point): `None` when the input was
+    /// not finite (counted in [`BasePlannerCycle::refused`]). Once the mission is complete and
+    /// the last target passed, the base stands for good from where it has lingered to a stop
+    /// or come within r_C + `pass_margin` of the run-out point. Before, the last target's
+    /// pass timed out as missed, the base came around, gave it up and drove on at v_F round
+    /// the run-out point for as long as the stack ran.
     pub fn step(&mut self, input: &BasePlannerInput) -> Option<BasePlannerOutput> {
         let task_index = input.mission.base_task_index();
         let offset = input.mission.odometry_offset;
@@ -105,7 +106,9 @@ impl BasePlannerCycle {
                 self.stopped = input.mission.is_complete()
                     && (self.stopped
                         || plan.passed
-                            && to_run_out <= config.closest_approach_radius + config.pass_margin);
+                            && (plan.command.v <= 0.0
+                                || to_run_out
+                                    <= config.closest_approach_radius + config.pass_margin));
                 if self.stopped {
                     plan.command = crate::types::BaseVelocity { v: 0.0, omega: 0.0 };
                 }

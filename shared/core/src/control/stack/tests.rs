@@ -182,6 +182,43 @@ fn base_planner_drives_for_the_last_task_after_completion_and_refuses_nan() {
     assert_eq!(planner.refused(), 1);
 }
 
+/// The base planner's commands over `seconds` with the base held at `base` past the last
+/// target (2, 0) of `mission`.
+fn commands_held_past_the_target(mission: MissionView, base: BasePose, seconds: f64) -> Vec<f64> {
+    let robot = frankie();
+    let mut planner = BasePlannerCycle::new(&robot, Default::default(), &[]);
+    let input = BasePlannerInput {
+        mission,
+        base,
+        target: TargetEstimate::fixed(Vector3::new(2.0, 0.0, 0.45)),
+        dt: 0.005,
+    };
+    (0..(seconds / input.dt) as usize)
+        .map(|_| planner.step(&input).expect("a plan").plan.command.v)
+        .collect()
+}
+
+#[test]
+fn after_the_mission_the_base_stands_instead_of_coming_around() {
+    // Held past the target with its task not done, the base lingers to a stop and, after the
+    // pass timeout, comes around for another approach.
+    let base = BasePose::new(2.4, 0.6, 0.0);
+    let active = commands_held_past_the_target(view(1, TaskKind::Place, Phase::Final), base, 10.0);
+    assert_eq!(active[0], 0.0);
+    assert!(
+        active.iter().any(|&v| v > 0.0),
+        "the missed pass comes around"
+    );
+    // Once the mission is complete the base stands at that stop for good.
+    let mut done = view(2, TaskKind::Place, Phase::Complete);
+    done.task_index = 2;
+    let complete = commands_held_past_the_target(done, base, 10.0);
+    assert!(complete.iter().all(|&v| v == 0.0));
+    // Near the run-out point (4, 0) it stands too.
+    let near = commands_held_past_the_target(done, BasePose::new(3.5, 0.3, 0.0), 1.0);
+    assert!(near.iter().all(|&v| v == 0.0));
+}
+
 #[test]
 fn reacher_waits_for_a_plan_of_its_task_and_is_idle_in_the_final_phase() {
     let robot = frankie();
