@@ -675,9 +675,7 @@ impl BaseController {
     /// Turning radius of the routes' arcs: `min_turn_radius`, or more if the yaw-rate limit
     /// needs it at the forward speed.
     pub fn turn_radius(&self) -> f64 {
-        self.config
-            .min_turn_radius
-            .max(self.speed() / self.model.max_yaw_rate.max(1e-6))
+        self.config.min_turn_radius.max(self.yaw_rate_radius())
     }
 
     /// The tight turning radius of a kept plan's re-route: `tight_turn_radius`, or more if the
@@ -686,9 +684,12 @@ impl BaseController {
         if self.config.tight_turn_radius <= 0.0 {
             return 0.0;
         }
-        self.config
-            .tight_turn_radius
-            .max(self.speed() / self.model.max_yaw_rate.max(1e-6))
+        self.config.tight_turn_radius.max(self.yaw_rate_radius())
+    }
+
+    /// The smallest turning radius the yaw-rate limit allows at the forward speed, m.
+    fn yaw_rate_radius(&self) -> f64 {
+        self.speed() / self.model.max_yaw_rate.max(1e-6)
     }
 
     /// One control step. Errors (and changes no state) if an input is not finite.
@@ -1195,7 +1196,8 @@ impl BaseController {
     ) -> DubinsPath {
         let wide = self.route_to(base, plan, target, radius, obstacles);
         let tight_radius = self.tight_turn_radius();
-        if tight_radius <= 0.0 || tight_radius >= radius {
+        // No route turns less than not at all: a wide route turning π or less has no loop to save.
+        if tight_radius <= 0.0 || tight_radius >= radius || wide.turning() <= std::f64::consts::PI {
             return wide;
         }
         let start = self.run_in_start(plan, target);

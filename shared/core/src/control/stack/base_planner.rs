@@ -100,15 +100,13 @@ impl BasePlannerCycle {
         }) {
             Ok(mut plan) => {
                 let config = self.controller.config();
-                let to_run_out = (input.mission.next_waypoint.xy()
-                    - nalgebra::Vector2::new(input.base.x, input.base.y))
-                .norm();
+                let near_run_out = || {
+                    let at = nalgebra::Vector2::new(input.base.x, input.base.y);
+                    (input.mission.next_waypoint.xy() - at).norm()
+                        <= config.closest_approach_radius + config.pass_margin
+                };
                 self.stopped = input.mission.is_complete()
-                    && (self.stopped
-                        || plan.passed
-                            && (plan.command.v <= 0.0
-                                || to_run_out
-                                    <= config.closest_approach_radius + config.pass_margin));
+                    && (self.stopped || plan.passed && (plan.command.v <= 0.0 || near_run_out()));
                 if self.stopped {
                     plan.command = crate::types::BaseVelocity { v: 0.0, omega: 0.0 };
                 }
