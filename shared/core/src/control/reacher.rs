@@ -95,6 +95,15 @@ pub struct ReacherConfig {
     /// rate limit never cuts into the plan: a cut plan arrives late and fast, and the hand-over
     /// to the final phase then jerks the tool. Outside (0, 1] nothing is stretched.
     pub acceleration_fraction: f64,
+    /// How far over the acceleration limit a reach that fell behind may go to keep its arrival
+    /// time (2.0). A stretched reach never ends later than the plan before it, so that
+    /// replanning cannot make the arrival recede; but when the tool lagged its command (the
+    /// base turned hard with the arm out) and arriving by then would take more than this times
+    /// the limit, the reach is given longer instead. Kept to its time it reached the hand-over
+    /// distance at 0.77 m/s with 0.4 m/s downward, too fast for the final phase to brake above
+    /// the cube, and swept it off (Exp 2 at 0.4 m/s). Below that ratio the late plan keeps its
+    /// time: the arm is then only a little harder on the tool than the limit.
+    pub late_acceleration_ratio: f64,
 }
 
 impl Default for ReacherConfig {
@@ -110,6 +119,7 @@ impl Default for ReacherConfig {
             yaw_symmetry: std::f64::consts::FRAC_PI_2,
             object_yaw: 0.0,
             acceleration_fraction: 0.9,
+            late_acceleration_ratio: 2.0,
         }
     }
 }
@@ -134,6 +144,10 @@ impl ReacherConfig {
                 "acceleration_fraction",
                 self.acceleration_fraction > 0.0 && self.acceleration_fraction <= 1.0,
             ),
+            (
+                "late_acceleration_ratio",
+                self.late_acceleration_ratio >= 1.0,
+            ),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -143,7 +157,7 @@ impl ReacherConfig {
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
                      min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
                      side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite, \
-                     0 < acceleration_fraction ≤ 1)",
+                     0 < acceleration_fraction ≤ 1, late_acceleration_ratio ≥ 1)",
                 ));
             }
         }
@@ -417,8 +431,10 @@ impl Reacher {
     /// start's own, when that is already higher), at the first of a geometric series of longer
     /// durations (up to [`MAX_DURATION_STRETCH`] × `timed`, and never past `latest`, the end of
     /// the last step's plan: replanned each step, a stretch that could recede would let the tool
-    /// creep toward a goal it never reaches) that does not. Returns the duration, the goal and
-    /// the quintic.
+    /// creep toward a goal it never reaches) that does not. A plan that even at `latest` needs
+    /// more than [`ReacherConfig::late_acceleration_ratio`] times the limit has fallen behind:
+    /// it is stretched past `latest` (within the same bound) until it fits. Returns the
+    /// duration, the goal and the quintic.
     fn timed_translation(
         &self,
         start: &PointState,
@@ -446,9 +462,16 @@ impl Reacher {
             return planned;
         }
         let allowed = self.max_acceleration.max(start.acceleration.norm());
-        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION).min(latest);
-        while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= longest {
-            planned = plan(planned.0 * DURATION_STEP);
+        let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION);
+        let stretch = |mut planned: (f64, Vector3<f64>, Quintic3), until: f64| {
+            while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= until {
+                planned = plan(planned.0 * DURATION_STEP);
+            }
+            planned
+        };
+        planned = stretch(planned, longest.min(latest));
+        if peak_acceleration(&planned.2) > allowed * self.config.late_acceleration_ratio {
+            planned = stretch(planned, longest);
         }
         planned
     }
@@ -802,6 +825,30 @@ mod tests {
             next.duration,
             out.duration
         );
+        // A reach that fell behind (the tool now moves away from the goal at 0.5 m/s) would need
+        // more than `late_acceleration_ratio` × the limit to arrive by then: it is given longer
+        // than the plan before it, and keeps within the limit.
+        let behind = limited
+            .step(&ReacherInput {
+                tool: ToolState {
+                    twist: Twist::new(0.0, 0.5, 0.0, 0.0, 0.0, 0.0),
+                    ..tool
+                },
+                ..input
+            })
+            .unwrap();
+        assert!(behind.duration > next.duration, "{}", behind.duration);
+        let quintic = Quintic3::new(
+            &PointState {
+                position: tool.pose.translation.vector,
+                velocity: Vector3::new(0.0, 0.5, 0.0),
+                acceleration: Vector3::zeros(),
+            },
+            &PointState::at_rest(behind.goal.translation.vector),
+            behind.duration,
+        )
+        .unwrap();
+        assert!(peak_acceleration(&quintic) <= allowed + 1e-9);
     }
 
     #[test]
