@@ -70,13 +70,32 @@ impl FacingJoint {
         })
     }
 
-    /// The facing error at `base`/`arm_q` with the tool at world position `tool`:
-    /// `wrap(atan2(p.y, p.x) − q − offset)`, rad. Positive when the tool lies counter-clockwise
-    /// of where the joint faces.
+    /// The facing error at `base`/`arm_q` with the tool at world position `tool`, rad: the turn
+    /// `atan2(p.y, p.x) − q − offset` that faces the tool, taken the short way round unless
+    /// that way ends past the joint's position limits while the long way does not (or ends
+    /// less far past them): then the long way. Positive counter-clockwise. A tool that lags a
+    /// hard turn of the base drifts behind the shoulder and across it; the short way would
+    /// then wind the joint onto its limit (the Panda's joint 1 at −2.8 rad with the tool
+    /// behind on the left), from where the next target on the other side is out of reach. The
+    /// joint instead turns back round the front.
     pub fn error(&self, robot: &Robot, base: &BasePose, arm_q: &[f64], tool: &Vector3<f64>) -> f64 {
         let frame = base.isometry() * zero_frame(robot, arm_q, self.arm_index);
         let p = frame.inverse_transform_vector(&(tool - frame.translation.vector));
-        wrap_angle(p.y.atan2(p.x) - arm_q[self.arm_index] - self.offset)
+        let short = wrap_angle(p.y.atan2(p.x) - arm_q[self.arm_index] - self.offset);
+        let q = arm_q[self.arm_index];
+        let limits = &robot.chain.joints[BASE_JOINTS + self.arm_index].limits;
+        let past_limits = |turn: f64| {
+            let goal = q + turn;
+            (limits.position_min - goal)
+                .max(goal - limits.position_max)
+                .max(0.0)
+        };
+        let long = short - std::f64::consts::TAU.copysign(short);
+        if past_limits(short) > past_limits(long) {
+            long
+        } else {
+            short
+        }
     }
 }
 
@@ -214,5 +233,28 @@ mod tests {
             let error = facing.error(&robot, &base, &turned, &tool);
             assert!((error + 0.2).abs() < 1e-9, "{name}: {error}");
         }
+    }
+
+    #[test]
+    fn a_tool_across_the_back_is_faced_round_the_front_not_past_the_limit() {
+        let robot = robot("frankie");
+        let facing = FacingJoint::from_robot(&robot).expect("the Panda's joint 1");
+        let base = BasePose::new(0.5, 0.2, -0.4);
+        let mut q = robot.config.ready_pose.clone();
+        // The tool placed at `bearing` about joint 1's axis, in its zero-position frame.
+        let tool_at = |q: &[f64], bearing: f64| {
+            let frame = base.isometry() * zero_frame(&robot, q, facing.arm_index);
+            frame.translation.vector
+                + frame.rotation * Vector3::new(0.5 * bearing.cos(), 0.5 * bearing.sin(), 0.0)
+        };
+        // Behind on the right, within reach of the limit (−2.8973): the short way.
+        q[0] = -2.0;
+        let error = facing.error(&robot, &base, &q, &tool_at(&q, -2.5));
+        assert!((error + 0.5).abs() < 1e-9, "{error}");
+        // Across the back, on the left: the short way (−0.58 rad) ends past the limit, so the
+        // joint turns back round the front (+5.7 rad).
+        q[0] = -2.8;
+        let error = facing.error(&robot, &base, &q, &tool_at(&q, 2.9));
+        assert!((error - 5.7).abs() < 1e-9, "{error}");
     }
 }
