@@ -81,8 +81,8 @@ impl FacingJoint {
     pub fn error(&self, robot: &Robot, base: &BasePose, arm_q: &[f64], tool: &Vector3<f64>) -> f64 {
         let frame = base.isometry() * zero_frame(robot, arm_q, self.arm_index);
         let p = frame.inverse_transform_vector(&(tool - frame.translation.vector));
-        let short = wrap_angle(p.y.atan2(p.x) - arm_q[self.arm_index] - self.offset);
         let q = arm_q[self.arm_index];
+        let short = wrap_angle(p.y.atan2(p.x) - q - self.offset);
         let limits = &robot.chain.joints[BASE_JOINTS + self.arm_index].limits;
         let past_limits = |turn: f64| {
             let goal = q + turn;

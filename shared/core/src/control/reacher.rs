@@ -457,23 +457,27 @@ impl Reacher {
             .expect("finite inputs and a positive duration");
             (duration, goal, quintic)
         };
-        let mut planned = plan(timed);
+        let planned = plan(timed);
         if !self.max_acceleration.is_finite() {
             return planned;
         }
         let allowed = self.max_acceleration.max(start.acceleration.norm());
         let longest = (timed * MAX_DURATION_STRETCH).min(MAX_DURATION);
+        // The plan stretched up to `until`, with its peak acceleration.
         let stretch = |mut planned: (f64, Vector3<f64>, Quintic3), until: f64| {
-            while peak_acceleration(&planned.2) > allowed && planned.0 * DURATION_STEP <= until {
+            let mut peak = peak_acceleration(&planned.2);
+            while peak > allowed && planned.0 * DURATION_STEP <= until {
                 planned = plan(planned.0 * DURATION_STEP);
+                peak = peak_acceleration(&planned.2);
             }
-            planned
+            (planned, peak)
         };
-        planned = stretch(planned, longest.min(latest));
-        if peak_acceleration(&planned.2) > allowed * self.config.late_acceleration_ratio {
-            planned = stretch(planned, longest);
+        let (kept, peak) = stretch(planned, longest.min(latest));
+        if peak > allowed * self.config.late_acceleration_ratio {
+            stretch(kept, longest).0
+        } else {
+            kept
         }
-        planned
     }
 
     /// Whether the reach from `tool` (base frame) to `goal` (base frame at range entry) would
