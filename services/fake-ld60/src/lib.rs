@@ -2,7 +2,7 @@
 //! (handshake, LIST, `ratioDrive`, `stop`, `updateNumbers` broadcasts) and an ARCL server
 //! (login, `status`, `oneLineStatus`, `stop`, e-stop lines). Its physics is not here: whoever
 //! runs it reads [`FakeLd60::commanded`] and writes [`FakeLd60::set_odometry`] (the
-//! `fake-ld60` binary bridges to sim-world; [`spawn_kinematic`] integrates a unicycle for
+//! `fake-ld60` process, [`service`], bridges to sim-world; [`spawn_kinematic`] integrates a unicycle for
 //! tests and standalone runs).
 //!
 //! Like the robot: a `ratioDrive` holds for [`FakeConfig::drive_timeout`] (2 s, the server's
@@ -10,6 +10,8 @@
 //! pressed it stops and ignores drives. It counts what it saw, including commands beyond the
 //! robot's speed and acceleration limits ([`FakeCounters`]). For the stale-odometry fault test
 //! it can stop sending `updateNumbers` after [`FakeConfig::stop_updates_after`].
+
+pub mod service;
 
 use std::io::{self, BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};

@@ -11,6 +11,7 @@
 //!   schema stored in the file.
 //! - [`replay_log`]: the raw samples and cycle records that `motm replay` reads.
 //! - [`foxglove`], [`json`]: the message encodings.
+//! - [`service`]: the `logger` process (the taps, the sinks and their loop).
 
 pub mod channels;
 pub mod foxglove;
@@ -20,6 +21,7 @@ pub mod live;
 pub mod protobuf_check;
 pub mod recorder;
 pub mod replay_log;
+pub mod service;
 pub mod sink;
 pub mod writeback;
 
