@@ -2,11 +2,13 @@
 //! steps the world in real time at the physics rate (1 kHz) from the newest hardware commands
 //! of the drivers, and publishes the arm, base and gripper state every step, palm-camera
 //! images at the camera rate (stamped with their exposure time, carrying their publication
-//! time) and the ground truth. The flags are [`motm_wire::sim_world::SimWorldArgs`].
+//! time) and the ground truth. The flags are [`args::SimWorldArgs`].
 
 use std::process::ExitCode;
 
-use motm_wire::sim_world::SimWorldArgs;
+use args::SimWorldArgs;
+
+mod args;
 
 fn main() -> ExitCode {
     let args: SimWorldArgs = motm_wire::parse("sim-world", "The simulated hardware");

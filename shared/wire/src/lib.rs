@@ -1,15 +1,13 @@
 //! # motm-wire
 //!
-//! What the service binaries share beyond their tasks (`motm-tasks`, `motm-sim`'s
-//! `SimWorldTask`): the common command line and model loading ([`setup`]), the generic main of
-//! a control service ([`serve`]: a service binary is its name, its flags and its task), and
-//! the command line of the simulated world ([`sim_world`]). The tasks run on
-//! `motm-runtime`'s ports and loops; their topics, rates and triggers are their rows of
-//! `motm_graph::GRAPH`.
+//! What the service binaries share beyond their tasks (`motm-tasks`): the common command line
+//! and model loading ([`setup`]) and the generic main of a control service ([`serve`]: a
+//! service binary is its name, its flags and its task). The tasks run on `motm-runtime`'s
+//! ports and loops; their topics, rates and triggers are their rows of `motm_graph::GRAPH`.
+//! (The simulated world's own command line is in the `sim-world` service.)
 
 pub mod serve;
 pub mod setup;
-pub mod sim_world;
 
 pub use motm_tasks::{controllers, convert};
 pub use serve::{NoFlags, Service, parse, positive};

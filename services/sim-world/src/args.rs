@@ -1,4 +1,4 @@
-//! The command line of the `sim-world` service and the [`SimWorldTask`] it builds.
+//! The command line of `sim-world` and the [`SimWorldTask`] it builds.
 
 use std::path::PathBuf;
 
@@ -10,7 +10,7 @@ use motm_sim::scenario_path;
 use motm_sim::sim_world::{SimWorld, SimWorldConfig};
 use motm_sim::task::SimWorldTask;
 
-use crate::setup::resolve_config_dir;
+use motm_core::resolve_config_dir;
 
 /// The flags of `sim-world`.
 #[derive(Debug, Clone, clap::Args)]
@@ -76,7 +76,7 @@ impl SimWorldArgs {
             ("--truth-rate", self.truth_rate),
             ("--command-timeout", self.command_timeout),
         ] {
-            crate::serve::positive(flag, rate)?;
+            motm_wire::positive(flag, rate)?;
         }
         let runner = RunnerConfig {
             physics_step: 1.0 / self.rate,
