@@ -2,8 +2,8 @@
 //! (handshake, LIST, `ratioDrive`, `stop`, `updateNumbers` broadcasts) and an ARCL server
 //! (login, `status`, `oneLineStatus`, `stop`, e-stop lines). Its physics is not here: whoever
 //! runs it reads [`FakeLd60::commanded`] and writes [`FakeLd60::set_odometry`] (the
-//! `fake-ld60` process, [`service`], bridges to sim-world; [`spawn_kinematic`] integrates a unicycle for
-//! tests and standalone runs).
+//! `fake-ld60` process, [`service`], bridges to sim-world; [`spawn_kinematic`] integrates a
+//! unicycle for tests and standalone runs).
 //!
 //! Like the robot: a `ratioDrive` holds for [`FakeConfig::drive_timeout`] (2 s, the server's
 //! "Timeout" setting), then the robot stops; `stop` stops it at once; while the e-stop is
