@@ -98,6 +98,12 @@ pub fn check_targets(faults: &[Fault], processes: &[String]) -> Result<(), Strin
     Ok(())
 }
 
+/// How long after a stopped process's SIGCONT a safe-stop raise is still the stop's, ns. The
+/// process resumes at once and its streams are fresh again within a few control cycles; a raise
+/// seconds later has another cause (a stack on a shared machine also raises, rarely, in a run
+/// without any fault: a 20-40 ms scheduling stall of the control path is a stale command).
+const STOP_ATTRIBUTION_SETTLE_NS: u64 = 1_000_000_000;
+
 /// A fault under way or done.
 struct Tracked {
     fault: Fault,
@@ -108,6 +114,8 @@ struct Tracked {
     continued_ns: Option<u64>,
     /// Stop: wall time when SIGCONT is due, ns.
     continue_at_ns: Option<u64>,
+    /// Monotonic time of the safe-stop raise attributed to the fault, ns.
+    raised_ns: Option<u64>,
 }
 
 /// Driver counters added over every instance (publisher) of each driver.
@@ -221,6 +229,7 @@ impl FaultRunner {
                     },
                     injected_ns: None,
                     continued_ns: None,
+                    raised_ns: None,
                     continue_at_ns: None,
                 })
                 .collect(),
@@ -364,20 +373,34 @@ impl FaultRunner {
     }
 
     /// Links each injected fault to the first safe-stop raise after it, and each stop to the
-    /// first release after its SIGCONT.
+    /// first release after its SIGCONT. A stop's raise counts only until
+    /// [`STOP_ATTRIBUTION_SETTLE_NS`] after its SIGCONT: a raise later than that, with the
+    /// process running again, is not the stop's (the report's `safe_stops` still counts it).
     fn attribute_safe_stops(&mut self) {
         for t in &mut self.tracked {
             let Some(injected) = t.injected_ns else {
                 continue;
             };
+            let until = t
+                .continued_ns
+                .map_or(u64::MAX, |c| c.saturating_add(STOP_ATTRIBUTION_SETTLE_NS));
             if t.record.safe_stop_ms.is_none()
-                && let Some(&raise) = self.raises_ns.iter().find(|&&r| r >= injected)
+                && let Some(&raise) = self
+                    .raises_ns
+                    .iter()
+                    .find(|&&r| r >= injected && r <= until)
             {
+                t.raised_ns = Some(raise);
                 t.record.safe_stop_ms = Some(ms(injected, raise));
             }
+            // Resumed: the stop's own safe-stop released after the SIGCONT.
             if let Some(continued) = t.continued_ns
                 && t.record.resumed_ms.is_none()
-                && let Some(&release) = self.releases_ns.iter().find(|&&r| r >= continued)
+                && let Some(raised) = t.raised_ns
+                && let Some(&release) = self
+                    .releases_ns
+                    .iter()
+                    .find(|&&r| r >= continued.max(raised))
             {
                 t.record.resumed_ms = Some(ms(continued, release));
                 t.record.outcome = "resumed".into();
