@@ -7,7 +7,6 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use motm_core::camera::CameraConfig;
-use motm_core::perception::PerceptionConfig;
 use motm_tasks::perception::PerceptionTask;
 use motm_wire::Service;
 
@@ -27,7 +26,7 @@ fn main() -> ExitCode {
                 let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
                 Ok(PerceptionTask::new(
                     setup.robot.clone(),
-                    PerceptionConfig::default(),
+                    setup.config.perception,
                     setup.camera_calibration(&CameraConfig::default()),
                     flags.history,
                     setup.config.mission.run_out_distance,

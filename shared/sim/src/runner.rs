@@ -19,7 +19,6 @@ use motm_core::camera::CameraConfig;
 use motm_core::command_limiter::CommandLimiterConfig;
 use motm_core::final_phase::FinalPhaseStage;
 use motm_core::on_the_move::OnTheMoveConfig;
-use motm_core::perception::PerceptionConfig;
 use motm_core::planning::{PlanRequest, PlanningConfig, PlanningController};
 use motm_core::reactive::{ReactiveBaseline, ReactiveConfig};
 use motm_core::resolver::RedundancyResolver;
@@ -66,8 +65,6 @@ pub struct RunnerConfig {
     pub time_steps: bool,
     /// Palm camera (the scenario's noise overrides its pixel noise and extrinsic error).
     pub camera: CameraConfig,
-    /// Perception.
-    pub perception: PerceptionConfig,
     /// EE acceleration filter.
     pub acceleration: AccelerationFilterConfig,
     /// MotM.
@@ -90,7 +87,6 @@ impl Default for RunnerConfig {
             record_log: false,
             time_steps: false,
             camera: CameraConfig::default(),
-            perception: PerceptionConfig::default(),
             acceleration: AccelerationFilterConfig::default(),
             motm: OnTheMoveConfig::default(),
             reactive: ReactiveConfig::default(),
@@ -294,7 +290,7 @@ fn hardware_graph(
         s.add(
             PerceptionTask::new(
                 robot.clone(),
-                config.perception,
+                config.motm.perception,
                 calibration,
                 PERCEPTION_HISTORY,
                 config.motm.mission.run_out_distance,

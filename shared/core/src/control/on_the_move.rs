@@ -37,6 +37,7 @@ use crate::base_slip::BaseSlipConfig;
 use crate::error::ModelError;
 use crate::final_phase::FinalPhaseConfig;
 use crate::mission::MissionConfig;
+use crate::perception::PerceptionConfig;
 use crate::reacher::ReacherConfig;
 use crate::resolver::ResolverConfig;
 use crate::types::Twist;
@@ -148,6 +149,8 @@ pub struct OnTheMoveConfig {
     pub base_slip: BaseSlipConfig,
     /// Acceleration limit on the base velocity target sent to the QP.
     pub base_rate: BaseCommandRateConfig,
+    /// Perception: colour thresholds, gates and the velocity fit.
+    pub perception: PerceptionConfig,
 }
 
 impl Default for OnTheMoveConfig {
@@ -163,6 +166,7 @@ impl Default for OnTheMoveConfig {
             max_position_error_rate: 0.2,
             base_slip: BaseSlipConfig::default(),
             base_rate: BaseCommandRateConfig::default(),
+            perception: PerceptionConfig::default(),
         }
     }
 }
@@ -205,6 +209,7 @@ impl OnTheMoveConfig {
         self.base.validate(file)?;
         self.reacher.validate(file)?;
         self.final_phase.validate(file)?;
+        self.perception.validate(file)?;
         let rates = [
             (
                 "twist_rate.linear_acceleration",
@@ -297,6 +302,13 @@ mod config_file_tests {
                 "[mission]\nlandmark_fix_weight = 2.0\n",
                 "mission.landmark_fix_weight",
             ),
+            ("[perception]\nmin_red = 300\n", "min_red"),
+            ("[perception]\nmin_pixels = 0\n", "perception.min_pixels"),
+            ("[perception]\nmax_range = -1.0\n", "perception.max_range"),
+            (
+                "[perception]\nmin_velocity_span = 2.0\n",
+                "perception.min_velocity_span",
+            ),
         ];
         for (text, key) in cases {
             let err = OnTheMoveConfig::from_toml_str(file, text)
@@ -309,5 +321,7 @@ mod config_file_tests {
         }
         let tuned = OnTheMoveConfig::from_toml_str(file, "[reacher]\narm_speed_ratio = 0.4\n");
         assert_eq!(tuned.unwrap().reacher.arm_speed_ratio, 0.4);
+        let tuned = OnTheMoveConfig::from_toml_str(file, "[perception]\nmin_red = 90\n");
+        assert_eq!(tuned.unwrap().perception.min_red, 90);
     }
 }

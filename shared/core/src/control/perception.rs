@@ -22,6 +22,7 @@ use nalgebra::{Isometry3, Vector2, Vector3};
 use serde::Deserialize;
 
 use crate::camera::CameraCalibration;
+use crate::error::ModelError;
 use crate::types::TargetEstimate;
 
 /// Settings of [`Perception`]. Every key is optional; unknown keys are errors.
@@ -115,6 +116,54 @@ impl Default for PerceptionConfig {
 }
 
 impl PerceptionConfig {
+    /// Checks every value (the `[perception]` table of `file`); the error names the key.
+    pub fn validate(&self, file: &std::path::Path) -> Result<(), ModelError> {
+        let positive = [
+            ("perception.velocity_window", self.velocity_window),
+            ("perception.min_velocity_span", self.min_velocity_span),
+            ("perception.max_range", self.max_range),
+            ("perception.max_container_range", self.max_container_range),
+            ("perception.max_prior_distance", self.max_prior_distance),
+            ("perception.max_hint_distance", self.max_hint_distance),
+            (
+                "perception.velocity_significance",
+                self.velocity_significance,
+            ),
+            ("perception.max_object_speed", self.max_object_speed),
+            (
+                "perception.constellation_tolerance",
+                self.constellation_tolerance,
+            ),
+        ];
+        for (key, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ModelError::invalid(
+                    file,
+                    key,
+                    format!("must be finite and positive, got {value}"),
+                ));
+            }
+        }
+        if self.min_pixels == 0 {
+            return Err(ModelError::invalid(
+                file,
+                "perception.min_pixels",
+                "must be at least 1",
+            ));
+        }
+        if self.min_velocity_span > self.velocity_window {
+            return Err(ModelError::invalid(
+                file,
+                "perception.min_velocity_span",
+                format!(
+                    "must not exceed perception.velocity_window ({} s), got {} s",
+                    self.velocity_window, self.min_velocity_span
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Whether an RGB pixel counts as red under these thresholds.
     pub fn is_red(&self, r: u8, g: u8, b: u8) -> bool {
         let margin = self.min_red_margin as i16;
