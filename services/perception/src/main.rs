@@ -3,10 +3,11 @@
 //! history stays dense; its deadline is one camera frame (33 ms), since a cycle with an image
 //! takes longer than one without.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use motm_core::camera::CameraConfig;
+use motm_core::camera::{CALIBRATION_FILE, CameraCalibration};
 use motm_tasks::perception::PerceptionTask;
 use motm_wire::Service;
 
@@ -16,6 +17,9 @@ struct Flags {
     /// Tool poses kept to pair images with.
     #[arg(long, default_value_t = 200)]
     history: usize,
+    /// The palm camera's calibration file (default: `cameras/palm.toml` in the config folder).
+    #[arg(long)]
+    calibration: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -23,11 +27,16 @@ fn main() -> ExitCode {
         .deadline(Duration::from_millis(33))
         .run(
             |setup, flags: Flags| {
+                let calibration = flags
+                    .calibration
+                    .unwrap_or_else(|| setup.config_dir.join(CALIBRATION_FILE));
+                let calibration =
+                    CameraCalibration::from_file(&calibration).map_err(|e| e.to_string())?;
                 let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
                 Ok(PerceptionTask::new(
                     setup.robot.clone(),
                     setup.config.perception,
-                    setup.camera_calibration(&CameraConfig::default()),
+                    calibration,
                     flags.history,
                     setup.config.mission.run_out_distance,
                 )

@@ -70,6 +70,41 @@ struct Setup {
     specs: Vec<LaunchSpec>,
     control_rate_hz: f64,
     mission: Option<MissionSequencerTask>,
+    /// Files written for this run (the simulated camera's calibration), removed when it ends.
+    run_files: Vec<PathBuf>,
+}
+
+/// The calibration file perception is launched with. With the simulated world in the stack the
+/// camera is the simulated one, so perception gets that camera's own calibration, its
+/// extrinsic error drawn from the seed as sim-world draws it (written for this run into the
+/// temp folder, named by the iceoryx2 prefix); on a robot it is the stack's `calibration`
+/// file. Either is read back here, so a bad file stops the stack before it starts. Returns the
+/// file, and again when it was written for this run.
+fn camera_calibration(
+    stack: &StackConfig,
+    config_dir: &std::path::Path,
+    scenario: &Scenario,
+    seed: u64,
+) -> Result<(PathBuf, Option<PathBuf>), String> {
+    let (file, written) = if stack.process(motm_graph::SIM_WORLD.name).is_some() {
+        let calibration = motm_sim::render::PalmCamera::for_trial(
+            &motm_core::camera::CameraConfig::default(),
+            scenario,
+            seed,
+        )
+        .calibration();
+        let file = std::env::temp_dir().join(format!(
+            "{}camera-calibration.toml",
+            IpcConfig::from_env().prefix
+        ));
+        std::fs::write(&file, calibration.to_toml())
+            .map_err(|e| format!("cannot write {}: {e}", file.display()))?;
+        (file.clone(), Some(file))
+    } else {
+        (stack.calibration_file(config_dir), None)
+    };
+    motm_core::camera::CameraCalibration::from_file(&file).map_err(|e| e.to_string())?;
+    Ok((file, written))
 }
 
 fn setup(args: &Args) -> Result<Setup, String> {
@@ -121,12 +156,16 @@ fn setup(args: &Args) -> Result<Setup, String> {
     }
     let controllers_file = stack.controllers_file(&config_dir);
     let controllers = OnTheMoveConfig::load(&controllers_file).map_err(|e| e.to_string())?;
+    let seed = args.seed.unwrap_or(stack.seed);
+    let (calibration, written) = camera_calibration(&stack, &config_dir, &scenario_file, seed)?;
+    let run_files: Vec<PathBuf> = written.into_iter().collect();
     let context = LaunchContext {
+        calibration,
         controllers: controllers_file,
         config_dir: config_dir.clone(),
         scenario: scenario.clone(),
         base_speed: scenario_file.base_speed,
-        seed: args.seed.unwrap_or(stack.seed),
+        seed,
         control_rate_hz,
     };
     let remote_env = || {
@@ -171,6 +210,7 @@ fn setup(args: &Args) -> Result<Setup, String> {
         specs,
         control_rate_hz,
         mission,
+        run_files,
     })
 }
 
@@ -288,6 +328,7 @@ fn run(setup: Setup) -> Result<(), String> {
         specs,
         control_rate_hz,
         mission,
+        run_files: _,
     } = setup;
     let ipc = IpcConfig::from_env();
     let bus = Bus::open("supervisor").map_err(|e| e.to_string())?;
@@ -352,11 +393,60 @@ pub fn main() -> ExitCode {
     if args.no_spawn {
         setup.specs.clear();
     }
-    match run(setup) {
+    let run_files = setup.run_files.clone();
+    let result = run(setup);
+    for file in run_files {
+        let _ = std::fs::remove_file(file);
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             motm_bus::say!("supervisor: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn config_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config")
+    }
+
+    #[test]
+    fn perception_gets_the_simulated_cameras_calibration_or_the_robots_file() {
+        let dir = config_dir();
+        let scenario = Scenario::from_file(&motm_sim::scenario_path(&dir, "exp1-dynamic")).unwrap();
+        // With sim-world in the stack: the trial camera's calibration, extrinsic error included,
+        // written for the run and read back exactly.
+        let sim = StackConfig::from_file(&dir.join("frankie.toml")).unwrap();
+        let (file, written) = camera_calibration(&sim, &dir, &scenario, 7).unwrap();
+        assert_eq!(written.as_ref(), Some(&file));
+        let expected = motm_sim::render::PalmCamera::for_trial(
+            &motm_core::camera::CameraConfig::default(),
+            &scenario,
+            7,
+        )
+        .calibration();
+        let read = motm_core::camera::CameraCalibration::from_file(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        assert_eq!(read, expected);
+        assert_ne!(
+            read,
+            motm_core::camera::CameraConfig::default().calibration()
+        );
+        // Without it (a robot): the stack's `calibration` file, checked before anything starts.
+        let mut robot = sim.clone();
+        robot
+            .processes
+            .retain(|p| p.name != motm_graph::SIM_WORLD.name);
+        let (file, written) = camera_calibration(&robot, &dir, &scenario, 7).unwrap();
+        assert_eq!((file, written), (dir.join("cameras/palm.toml"), None));
+        robot.calibration = PathBuf::from("cameras/missing.toml");
+        let err = camera_calibration(&robot, &dir, &scenario, 7).unwrap_err();
+        assert!(err.contains("cameras/missing.toml"), "{err}");
     }
 }

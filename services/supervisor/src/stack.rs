@@ -6,9 +6,9 @@
 //! order (upstream first); whether one is on the control path comes from the graph too.
 //!
 //! Process arguments are templates: `{config_dir}`, `{scenario}`, `{base_speed}`, `{robot}`, `{seed}`,
-//! `{rate}` (the process's own rate), `{control_rate}`, `{stack}` (this file) and
-//! `{controllers}` (the controllers file, `controllers`) are replaced when the process is
-//! launched.
+//! `{rate}` (the process's own rate), `{control_rate}`, `{stack}` (this file),
+//! `{controllers}` (the controllers file, `controllers`) and `{calibration}` (the camera
+//! calibration file perception uses) are replaced when the process is launched.
 
 use std::path::{Path, PathBuf};
 
@@ -20,7 +20,7 @@ use motm_msgs::{MAX_SUPERVISED_PROCESSES, PROCESS_NAME_BYTES};
 use serde::Deserialize;
 
 /// The placeholders an argument template may use.
-pub const PLACEHOLDERS: [&str; 9] = [
+pub const PLACEHOLDERS: [&str; 10] = [
     "config_dir",
     "scenario",
     "base_speed",
@@ -30,6 +30,7 @@ pub const PLACEHOLDERS: [&str; 9] = [
     "control_rate",
     "stack",
     "controllers",
+    "calibration",
 ];
 
 /// One process of the stack.
@@ -82,6 +83,12 @@ pub struct StackConfig {
     /// supervisor's mission and every control service (`{controllers}`) use it.
     #[serde(default = "default_controllers")]
     pub controllers: PathBuf,
+    /// The palm camera's calibration file, relative to the config folder (default
+    /// `cameras/palm.toml`): what perception (`{calibration}`) turns pixels into rays with on
+    /// the robot. A stack with the simulated world hands perception the simulated camera's
+    /// own calibration instead (see the supervisor's setup).
+    #[serde(default = "default_calibration")]
+    pub calibration: PathBuf,
     /// Longest wait for the processes to exit after SIGTERM before SIGKILL, ms.
     #[serde(default = "default_shutdown_grace")]
     pub shutdown_grace_ms: f64,
@@ -123,6 +130,10 @@ fn default_controllers() -> PathBuf {
     PathBuf::from(motm_core::on_the_move::CONTROLLERS_FILE)
 }
 
+fn default_calibration() -> PathBuf {
+    PathBuf::from(motm_core::camera::CALIBRATION_FILE)
+}
+
 fn default_shutdown_grace() -> f64 {
     3000.0
 }
@@ -142,6 +153,8 @@ pub struct LaunchContext {
     pub control_rate_hz: f64,
     /// The controllers file ([`StackConfig::controllers_file`]).
     pub controllers: PathBuf,
+    /// The camera calibration file perception reads.
+    pub calibration: PathBuf,
 }
 
 impl StackConfig {
@@ -322,6 +335,11 @@ impl StackConfig {
         config_dir.join(&self.controllers)
     }
 
+    /// The camera calibration file, in `config_dir` unless `calibration` is absolute.
+    pub fn calibration_file(&self, config_dir: &Path) -> PathBuf {
+        config_dir.join(&self.calibration)
+    }
+
     /// The named process, if listed.
     pub fn process(&self, name: &str) -> Option<&ProcessConfig> {
         self.processes.iter().find(|p| p.name == name)
@@ -345,6 +363,7 @@ impl StackConfig {
             ("control_rate", context.control_rate_hz.to_string()),
             ("stack", self.path.display().to_string()),
             ("controllers", context.controllers.display().to_string()),
+            ("calibration", context.calibration.display().to_string()),
         ];
         process
             .args
@@ -615,6 +634,7 @@ mod tests {
             seed: 7,
             control_rate_hz: 1000.0,
             controllers: PathBuf::from("/c/controllers.toml"),
+            calibration: PathBuf::from("/c/cameras/palm.toml"),
         };
         assert_eq!(
             stack.expand_args(&stack.processes[0], &context),

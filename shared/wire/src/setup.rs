@@ -5,10 +5,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use motm_core::Robot;
-use motm_core::camera::{CameraCalibration, CameraConfig};
 use motm_core::on_the_move::OnTheMoveConfig;
 use motm_sim::Scenario;
-use motm_sim::render::PalmCamera;
 use motm_tasks::ControlSetup;
 
 /// Robot used when neither `--robot` nor a scenario names one.
@@ -29,7 +27,7 @@ pub struct ServiceArgs {
     /// Base forward speed, m/s (default: the scenario's).
     #[arg(long)]
     pub base_speed: Option<f64>,
-    /// Trial seed (the camera calibration error is drawn from it, as in the simulated world).
+    /// Trial seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Cycle rate, Hz.
@@ -44,6 +42,8 @@ pub struct ServiceArgs {
 /// Everything a control service loads at start-up.
 #[derive(Debug, Clone)]
 pub struct ServiceSetup {
+    /// The config folder.
+    pub config_dir: PathBuf,
     /// The robot model.
     pub robot: Robot,
     /// The scenario, when one was given.
@@ -91,6 +91,7 @@ impl ServiceSetup {
             config.base.forward_speed = speed;
         }
         Ok(Self {
+            config_dir,
             robot,
             scenario,
             config,
@@ -116,15 +117,6 @@ impl ServiceSetup {
     /// The cycle period, s.
     pub fn dt(&self) -> f64 {
         1.0 / self.rate_hz
-    }
-
-    /// The calibration perception uses: the trial camera's (with the scenario's extrinsic
-    /// error drawn from the seed), or the nominal one without a scenario.
-    pub fn camera_calibration(&self, camera: &CameraConfig) -> CameraCalibration {
-        match &self.scenario {
-            Some(scenario) => PalmCamera::for_trial(camera, scenario, self.seed).calibration(),
-            None => camera.calibration(),
-        }
     }
 }
 

@@ -239,7 +239,169 @@ pub struct CameraCalibration {
     pub tool_from_camera: Isometry3<f64>,
 }
 
+/// The palm camera's calibration file in the config folder.
+pub const CALIBRATION_FILE: &str = "cameras/palm.toml";
+
+/// A camera calibration file (`config/cameras/palm.toml`): the intrinsics and the camera's pose
+/// in the tool frame, as a calibration procedure writes them.
+///
+/// ```toml
+/// [intrinsics]            # equidistant fisheye: (u, v) = (cx + fx·θ·cos φ, cy + fy·θ·sin φ)
+/// width = 320             # pixels
+/// height = 240
+/// fx = 145.2              # pixels per radian
+/// fy = 145.2
+/// cx = 159.5              # pixels
+/// cy = 119.5
+/// max_theta = 1.1         # rad, half the field of view
+///
+/// [tool_from_camera]
+/// translation = [0.05, 0.0, -0.04]      # m, tool frame
+/// rotation = [1.0, 0.0, 0.0, 0.0]       # unit quaternion [w, x, y, z]
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CalibrationFile {
+    intrinsics: IntrinsicsFile,
+    tool_from_camera: ExtrinsicsFile,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct IntrinsicsFile {
+    width: u32,
+    height: u32,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    max_theta: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ExtrinsicsFile {
+    translation: [f64; 3],
+    rotation: [f64; 4],
+}
+
+/// How far a calibration file's rotation quaternion may be from unit length, and still be
+/// taken as written (farther is an error; a written-out unit quaternion is within 1e-15).
+const QUATERNION_NORM_TOLERANCE: f64 = 1e-6;
+
 impl CameraCalibration {
+    /// Reads a calibration file (see [`CameraCalibration::to_toml`] for the format); the error
+    /// names the file and the key.
+    pub fn from_file(file: &Path) -> Result<Self, ModelError> {
+        let text = ModelError::read_to_string(file)?;
+        Self::from_toml_str(file, &text)
+    }
+
+    /// Parses and checks calibration text that came from `file`.
+    pub fn from_toml_str(file: &Path, text: &str) -> Result<Self, ModelError> {
+        let raw: CalibrationFile = ModelError::parse_toml_str(file, text)?;
+        let bad = |key: &str, message: String| Err(ModelError::invalid(file, key, message));
+        let i = raw.intrinsics;
+        if i.width == 0 || i.height == 0 {
+            return bad(
+                "intrinsics.width",
+                format!("the image must have pixels, got {}×{}", i.width, i.height),
+            );
+        }
+        for (key, value) in [
+            ("intrinsics.fx", i.fx),
+            ("intrinsics.fy", i.fy),
+            ("intrinsics.max_theta", i.max_theta),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return bad(key, format!("must be finite and positive, got {value}"));
+            }
+        }
+        for (key, value, size) in [
+            ("intrinsics.cx", i.cx, i.width),
+            ("intrinsics.cy", i.cy, i.height),
+        ] {
+            if !(value.is_finite() && (0.0..=f64::from(size)).contains(&value)) {
+                return bad(
+                    key,
+                    format!("must lie on the image (0 to {size}), got {value}"),
+                );
+            }
+        }
+        if i.max_theta > std::f64::consts::PI {
+            return bad(
+                "intrinsics.max_theta",
+                format!("must be at most π, got {}", i.max_theta),
+            );
+        }
+        let e = raw.tool_from_camera;
+        if !e.translation.iter().all(|v| v.is_finite()) {
+            return bad(
+                "tool_from_camera.translation",
+                format!("must be finite, got {:?}", e.translation),
+            );
+        }
+        let [w, x, y, z] = e.rotation;
+        let q = nalgebra::Quaternion::new(w, x, y, z);
+        if !(q.coords.iter().all(|v| v.is_finite())
+            && (q.norm() - 1.0).abs() <= QUATERNION_NORM_TOLERANCE)
+        {
+            return bad(
+                "tool_from_camera.rotation",
+                format!(
+                    "must be a unit quaternion [w, x, y, z], got {:?} (norm {})",
+                    e.rotation,
+                    q.norm()
+                ),
+            );
+        }
+        Ok(Self {
+            model: CameraModel {
+                width: i.width,
+                height: i.height,
+                fx: i.fx,
+                fy: i.fy,
+                cx: i.cx,
+                cy: i.cy,
+                max_theta: i.max_theta,
+            },
+            tool_from_camera: Isometry3::from_parts(
+                Translation3::new(e.translation[0], e.translation[1], e.translation[2]),
+                UnitQuaternion::new_unchecked(q),
+            ),
+        })
+    }
+
+    /// The calibration as a file's text, every value written so that it reads back exactly.
+    pub fn to_toml(&self) -> String {
+        let m = &self.model;
+        let t = self.tool_from_camera.translation.vector;
+        let q = self.tool_from_camera.rotation.quaternion();
+        format!(
+            "# Palm camera calibration: intrinsics (equidistant fisheye) and the camera's pose in\n\
+             # the tool frame.\n\
+             [intrinsics]\n\
+             width = {}\nheight = {}\nfx = {:?}\nfy = {:?}\ncx = {:?}\ncy = {:?}\nmax_theta = {:?}\n\n\
+             [tool_from_camera]\n\
+             translation = [{:?}, {:?}, {:?}]  # m\n\
+             rotation = [{:?}, {:?}, {:?}, {:?}]  # unit quaternion [w, x, y, z]\n",
+            m.width,
+            m.height,
+            m.fx,
+            m.fy,
+            m.cx,
+            m.cy,
+            m.max_theta,
+            t.x,
+            t.y,
+            t.z,
+            q.w,
+            q.i,
+            q.j,
+            q.k
+        )
+    }
+
     /// The same calibration with the camera position moved by `offset` (tool frame, m): how an
     /// extrinsic calibration error is modelled.
     pub fn with_position_offset(&self, offset: Vector3<f64>) -> Self {
@@ -361,5 +523,58 @@ mod tests {
             - calibration.tool_from_camera.translation.vector;
         assert!((delta - Vector3::new(0.0, 0.005, 0.0)).norm() < 1e-15);
         assert_eq!(shifted.model, calibration.model);
+    }
+
+    #[test]
+    fn a_calibration_file_reads_back_exactly_and_the_shipped_one_is_the_nominal_camera() {
+        let nominal = CameraConfig::default().calibration();
+        let shifted = nominal.with_position_offset(Vector3::new(0.0031, -0.0017, 0.0023));
+        for calibration in [nominal, shifted] {
+            let text = calibration.to_toml();
+            let read = CameraCalibration::from_toml_str(Path::new("cal.toml"), &text).unwrap();
+            assert_eq!(read, calibration, "{text}");
+        }
+        let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/cameras/palm.toml");
+        assert_eq!(CameraCalibration::from_file(&shipped).unwrap(), nominal);
+    }
+
+    #[test]
+    fn a_bad_calibration_file_names_the_file_and_the_key() {
+        let good = CameraConfig::default().calibration().to_toml();
+        let cases = [
+            ("fx = ", "fx = -1.0 #", "intrinsics.fx"),
+            ("cx = ", "cx = 1e9 #", "intrinsics.cx"),
+            ("width = ", "width = 0 #", "intrinsics.width"),
+            ("max_theta = ", "max_theta = 4.0 #", "intrinsics.max_theta"),
+            (
+                "rotation = ",
+                "rotation = [1.0, 0.5, 0.0, 0.0] #",
+                "tool_from_camera.rotation",
+            ),
+            (
+                "translation = ",
+                "translation = [0.0, nan, 0.0] #",
+                "tool_from_camera.translation",
+            ),
+            ("fy = ", "fyy = 1.0\nfy = ", "fyy"),
+        ];
+        for (find, replace, key) in cases {
+            assert!(good.contains(find));
+            let text = good.replacen(find, replace, 1);
+            let err = CameraCalibration::from_toml_str(Path::new("cal.toml"), &text)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("cal.toml") && err.contains(key),
+                "{key}: {err}"
+            );
+        }
+        let missing = CameraCalibration::from_file(Path::new("/nonexistent/cal.toml"));
+        assert!(
+            missing
+                .unwrap_err()
+                .to_string()
+                .contains("/nonexistent/cal.toml")
+        );
     }
 }
