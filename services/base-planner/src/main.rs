@@ -9,7 +9,7 @@ use motm_wire::{NoFlags, Service};
 fn main() -> ExitCode {
     Service::new(&motm_graph::BASE_PLANNER, "Base planner service").run(
         |setup, _: NoFlags| {
-            let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
+            let tasks = setup.mission.as_ref().map(|m| m.tasks.clone());
             Ok(BasePlannerTask::new(
                 &setup.control(),
                 &tasks.unwrap_or_default(),

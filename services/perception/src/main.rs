@@ -32,7 +32,7 @@ fn main() -> ExitCode {
                     .unwrap_or_else(|| setup.config_dir.join(CALIBRATION_FILE));
                 let calibration =
                     CameraCalibration::from_file(&calibration).map_err(|e| e.to_string())?;
-                let tasks = setup.scenario.as_ref().map(|s| s.mission_tasks());
+                let tasks = setup.mission.as_ref().map(|m| m.tasks.clone());
                 Ok(PerceptionTask::new(
                     setup.robot.clone(),
                     setup.config.perception,

@@ -34,9 +34,12 @@
 
 use std::path::{Path, PathBuf};
 
-use motm_core::mission::{MissionTask, TaskKind};
+use motm_core::mission::MissionTask;
+use motm_core::mission_file::{
+    check_above_floor, check_after_object, check_base_speed, check_base_speed_flag, check_finite,
+    mission_tasks,
+};
 use motm_core::{BasePose, ModelError, ROBOT_NAMES};
-use nalgebra::Vector3;
 use serde::Deserialize;
 
 /// How a cube moves on its platform. The robot is never told.
@@ -174,8 +177,7 @@ pub struct Scenario {
     pub path: PathBuf,
 }
 
-/// Greatest base speed a scenario may ask for, m/s (none of the robots is faster).
-pub const MAX_BASE_SPEED: f64 = 2.0;
+pub use motm_core::mission_file::MAX_BASE_SPEED;
 /// Greatest cube speed a scenario may ask for, m/s.
 pub const MAX_OBJECT_SPEED: f64 = 0.5;
 /// Greatest command latency a scenario may ask for, s.
@@ -205,12 +207,7 @@ impl Scenario {
     /// Replaces the base speed (e.g. from `--base-speed`), with the same check as the file's key.
     pub fn set_base_speed(&mut self, base_speed: f64) -> Result<(), String> {
         // The value comes from the command line, so the error names the flag, not the file.
-        if check_base_speed(&self.path, base_speed).is_err() {
-            return Err(format!(
-                "--base-speed {base_speed}: must be in (0, {MAX_BASE_SPEED}] m/s (it overrides base_speed of {})",
-                self.path.display()
-            ));
-        }
+        check_base_speed_flag(&self.path, base_speed)?;
         self.base_speed = base_speed;
         Ok(())
     }
@@ -223,35 +220,10 @@ impl Scenario {
     /// The mission: pick and place each cube in order, each button pressed right after the
     /// object its `after_object` names is placed, or after every object without it.
     pub fn mission_tasks(&self) -> Vec<MissionTask> {
-        let mut tasks = Vec::with_capacity(2 * self.objects.len() + self.buttons.len());
-        let press = |item: usize, button: &ScenarioButton| MissionTask {
-            kind: TaskKind::PressButton,
-            item,
-            position: Vector3::from(button.position),
-        };
-        for (item, object) in self.objects.iter().enumerate() {
-            tasks.push(MissionTask {
-                kind: TaskKind::Pick,
-                item,
-                position: Vector3::from(object.position),
-            });
-            tasks.push(MissionTask {
-                kind: TaskKind::Place,
-                item,
-                position: Vector3::from(object.place),
-            });
-            for (b, button) in self.buttons.iter().enumerate() {
-                if button.after_object == Some(item) {
-                    tasks.push(press(b, button));
-                }
-            }
-        }
-        for (b, button) in self.buttons.iter().enumerate() {
-            if button.after_object.is_none_or(|k| k >= self.objects.len()) {
-                tasks.push(press(b, button));
-            }
-        }
-        tasks
+        mission_tasks(
+            self.objects.iter().map(|o| (o.position, o.place)),
+            self.buttons.iter().map(|b| (b.position, b.after_object)),
+        )
     }
 
     /// Checks every value; the error names the file and the key.
@@ -285,14 +257,7 @@ impl Scenario {
             if !(button.depth.is_finite() && button.depth > 0.0 && button.depth <= 0.05) {
                 return bad(&format!("{key}.depth"), "must be in (0, 0.05] m");
             }
-            if let Some(k) = button.after_object
-                && k >= self.objects.len()
-            {
-                return bad(
-                    &format!("{key}.after_object"),
-                    &format!("no object {k}: the scenario has {}", self.objects.len()),
-                );
-            }
+            check_after_object(file, i, button.after_object, self.objects.len())?;
         }
         self.noise.validate(file)
     }
@@ -398,44 +363,6 @@ impl Noise {
         }
         Ok(())
     }
-}
-
-fn check_base_speed(file: &Path, base_speed: f64) -> Result<(), ModelError> {
-    if base_speed.is_finite() && base_speed > 0.0 && base_speed <= MAX_BASE_SPEED {
-        Ok(())
-    } else {
-        Err(ModelError::invalid(
-            file,
-            "base_speed",
-            format!("must be in (0, {MAX_BASE_SPEED}] m/s, got {base_speed}"),
-        ))
-    }
-}
-
-fn check_finite(file: &Path, key: &str, values: &[f64]) -> Result<(), ModelError> {
-    match values.iter().find(|v| !v.is_finite()) {
-        Some(v) => Err(ModelError::invalid(
-            file,
-            key,
-            format!("must be finite numbers, got {v}"),
-        )),
-        None => Ok(()),
-    }
-}
-
-fn check_above_floor(file: &Path, key: &str, position: &[f64; 3]) -> Result<(), ModelError> {
-    check_finite(file, key, position)?;
-    if position[2] <= 0.0 {
-        return Err(ModelError::invalid(
-            file,
-            key,
-            format!(
-                "height must be above the floor (> 0 m), got {}",
-                position[2]
-            ),
-        ));
-    }
-    Ok(())
 }
 
 /// The key an error from `serde_path_to_error` refers to: its path, plus the field named in a

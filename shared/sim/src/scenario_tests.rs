@@ -1,4 +1,6 @@
 use super::*;
+use motm_core::mission::TaskKind;
+use nalgebra::Vector3;
 
 /// The project's `config/` folder.
 fn config_dir() -> PathBuf {
@@ -240,4 +242,32 @@ fn a_button_after_an_object_is_pressed_right_after_its_place() {
         .unwrap_err()
         .to_string();
     assert_names(&message, "buttons[0].after_object");
+}
+
+#[test]
+fn every_shipped_scenario_gives_the_control_processes_the_simulators_mission() {
+    let dir = config_dir().join("scenarios");
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let scenario = Scenario::from_file(&path).unwrap();
+        let mission = motm_core::mission_file::MissionFile::from_file(&path).unwrap();
+        assert_eq!(
+            mission.tasks,
+            scenario.mission_tasks(),
+            "{}",
+            path.display()
+        );
+        assert_eq!(
+            (mission.robot.as_str(), mission.base_speed),
+            (scenario.robot.as_str(), scenario.base_speed),
+            "{}",
+            path.display()
+        );
+        checked += 1;
+    }
+    assert!(checked >= 10, "{checked} scenarios");
 }

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use motm_core::Robot;
+use motm_core::mission_file::MissionFile;
 use motm_core::on_the_move::OnTheMoveConfig;
-use motm_sim::Scenario;
 use motm_tasks::ControlSetup;
 
 /// Robot used when neither `--robot` nor a scenario names one.
@@ -18,7 +18,8 @@ pub struct ServiceArgs {
     /// Config folder (default: $MOTM_CONFIG_DIR, then ./config, then the source tree's config/).
     #[arg(long)]
     pub config_dir: Option<PathBuf>,
-    /// Scenario file: its robot, base speed and camera noise are used.
+    /// Scenario file: its mission (robot, base speed, tasks) is read; the simulated world's
+    /// parts are left to the simulator.
     #[arg(long)]
     pub scenario: Option<PathBuf>,
     /// Robot name (default: the scenario's robot, else frankie).
@@ -46,8 +47,8 @@ pub struct ServiceSetup {
     pub config_dir: PathBuf,
     /// The robot model.
     pub robot: Robot,
-    /// The scenario, when one was given.
-    pub scenario: Option<Scenario>,
+    /// The mission of the scenario file, when one was given.
+    pub mission: Option<MissionFile>,
     /// Controller settings (defaults, with the scenario's or the flag's base speed).
     pub config: OnTheMoveConfig,
     /// Trial seed.
@@ -68,32 +69,32 @@ impl ServiceSetup {
             ));
         }
         let config_dir = resolve_config_dir(args.config_dir.as_deref());
-        let mut scenario = match &args.scenario {
-            Some(path) => Some(Scenario::from_file(path).map_err(|e| e.to_string())?),
+        let mut mission = match &args.scenario {
+            Some(path) => Some(MissionFile::from_file(path).map_err(|e| e.to_string())?),
             None => None,
         };
         let robot_name = args
             .robot
             .clone()
-            .or_else(|| scenario.as_ref().map(|s| s.robot.clone()))
+            .or_else(|| mission.as_ref().map(|s| s.robot.clone()))
             .unwrap_or_else(|| DEFAULT_ROBOT.to_owned());
         let robot = Robot::load(&config_dir, &robot_name).map_err(|e| e.to_string())?;
         let mut config = OnTheMoveConfig::for_stack(&config_dir, args.controllers.as_deref())
             .map_err(|e| e.to_string())?;
         if let Some(speed) = args.base_speed {
-            match scenario.as_mut() {
-                Some(s) => s.set_base_speed(speed).map_err(|e| e.to_string())?,
+            match mission.as_mut() {
+                Some(s) => s.set_base_speed(speed)?,
                 None if speed.is_finite() && speed > 0.0 => {}
                 None => return Err(format!("--base-speed: must be positive, got {speed}")),
             }
         }
-        if let Some(speed) = args.base_speed.or(scenario.as_ref().map(|s| s.base_speed)) {
+        if let Some(speed) = args.base_speed.or(mission.as_ref().map(|s| s.base_speed)) {
             config.base.forward_speed = speed;
         }
         Ok(Self {
             config_dir,
             robot,
-            scenario,
+            mission,
             config,
             seed: args.seed,
             rate_hz: args.rate,

@@ -19,6 +19,7 @@ use motm_bus::{
 };
 use motm_core::kinematics::BasePose;
 use motm_core::mission::{MissionTask, Phase};
+use motm_core::mission_file::MissionFile;
 use motm_core::on_the_move::OnTheMoveConfig;
 use motm_core::{Robot, wrap_angle};
 use motm_graph::{Scheduler, Source, Task, TaskSpec, ports};
@@ -27,7 +28,6 @@ use motm_msgs::{
     ArmVelocityCommand, BaseOdometry, BaseVelocityCommand, GripperAction, GripperCommand,
     GripperState, JointState, Message, MissionState, services,
 };
-use motm_sim::Scenario;
 use motm_tasks::ControlSetup;
 use motm_wire::convert;
 
@@ -352,8 +352,8 @@ fn run_pick_and_place(rate: &str) {
     std::fs::create_dir_all(&folder).unwrap();
     let scenario_file = folder.join("scenario.toml");
     std::fs::write(&scenario_file, SCENARIO).unwrap();
-    let scenario = Scenario::from_file(&scenario_file).unwrap();
-    let (reference, reference_phases) = single_process_mission(&robot, scenario.mission_tasks());
+    let mission = MissionFile::from_file(&scenario_file).unwrap();
+    let (reference, reference_phases) = single_process_mission(&robot, mission.tasks);
     let mut plant = Plant::at_rest(&robot);
     let ipc = IpcConfig {
         prefix: format!("motmt{}_chain{rate}_", std::process::id()),

@@ -11,6 +11,7 @@ pub mod final_phase;
 pub mod input_check;
 pub mod localization;
 pub mod mission;
+pub mod mission_file;
 pub mod mission_tracker;
 pub mod on_the_move;
 pub mod perception;
