@@ -6,7 +6,7 @@
 pub mod binaries;
 pub mod process_table;
 pub mod service;
-pub mod stack;
+pub use motm_stack as stack;
 pub mod swap;
 
 pub use motm_sim::scenario_path;

@@ -13,7 +13,7 @@ use motm_core::watchdog::{SafetyFault, SourceKind, Watchdog};
 use motm_msgs::{
     ArmVelocityCommand, BaseVelocityCommand, Heartbeat, Message, SafeStop, SafeStopReason, services,
 };
-use motm_supervisor::StackConfig;
+use motm_stack::StackConfig;
 
 /// Exit code for bad input (a bad file, key or value).
 const EXIT_BAD_INPUT: u8 = 2;
