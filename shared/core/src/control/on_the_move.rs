@@ -234,16 +234,7 @@ impl OnTheMoveConfig {
             ("max_position_error", self.max_position_error),
             ("max_position_error_rate", self.max_position_error_rate),
         ];
-        for (key, value) in rates {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(ModelError::invalid(
-                    file,
-                    key,
-                    format!("must be finite and positive, got {value}"),
-                ));
-            }
-        }
-        Ok(())
+        ModelError::check_positive(file, &rates)
     }
 }
 

@@ -135,15 +135,7 @@ impl PerceptionConfig {
                 self.constellation_tolerance,
             ),
         ];
-        for (key, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(ModelError::invalid(
-                    file,
-                    key,
-                    format!("must be finite and positive, got {value}"),
-                ));
-            }
-        }
+        ModelError::check_positive(file, &positive)?;
         if self.min_pixels == 0 {
             return Err(ModelError::invalid(
                 file,

@@ -308,15 +308,14 @@ impl CameraCalibration {
                 format!("the image must have pixels, got {}×{}", i.width, i.height),
             );
         }
-        for (key, value) in [
-            ("intrinsics.fx", i.fx),
-            ("intrinsics.fy", i.fy),
-            ("intrinsics.max_theta", i.max_theta),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return bad(key, format!("must be finite and positive, got {value}"));
-            }
-        }
+        ModelError::check_positive(
+            file,
+            &[
+                ("intrinsics.fx", i.fx),
+                ("intrinsics.fy", i.fy),
+                ("intrinsics.max_theta", i.max_theta),
+            ],
+        )?;
         for (key, value, size) in [
             ("intrinsics.cx", i.cx, i.width),
             ("intrinsics.cy", i.cy, i.height),

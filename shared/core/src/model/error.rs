@@ -45,6 +45,22 @@ impl ModelError {
         }
     }
 
+    /// Checks that every `(key, value)` of `file` is finite and positive; the error names the
+    /// first key that is not.
+    pub fn check_positive(file: &Path, values: &[(&str, f64)]) -> Result<(), Self> {
+        match values
+            .iter()
+            .find(|(_, value)| !(value.is_finite() && *value > 0.0))
+        {
+            Some(&(key, value)) => Err(Self::invalid(
+                file,
+                key,
+                format!("must be finite and positive, got {value}"),
+            )),
+            None => Ok(()),
+        }
+    }
+
     /// Reads `file` to a string, naming the file on failure.
     pub fn read_to_string(file: &Path) -> Result<String, Self> {
         std::fs::read_to_string(file).map_err(|source| Self::Io {
