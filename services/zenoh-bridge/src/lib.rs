@@ -23,6 +23,7 @@ pub mod bench;
 pub mod config;
 pub mod envelope;
 pub mod lanes;
+pub mod service;
 
 use std::collections::HashMap;
 use std::sync::Arc;
