@@ -711,6 +711,9 @@ pub struct MissionState {
     /// a world point `p` is at `R(yaw)·p + (x, y)` in odometry, `[x, y, yaw]` (m, rad). The
     /// targets above are already in odometry; this is for the rest of the known layout.
     pub odometry_offset: [f64; 3],
+    /// 1 once the mission predicts the odometry drift between landmark fixes (its rate has been
+    /// estimated), so that known positions in odometry are good to a few centimetres; 0 before.
+    pub odometry_calibrated: u32,
 }
 
 message!(MissionState, |m, c| {
@@ -729,6 +732,7 @@ message!(MissionState, |m, c| {
     )?;
     c.all_within("next_target", &m.next_target, envelope::WORLD_POSITION)?;
     flag(c, "has_next", m.has_next)?;
+    flag(c, "odometry_calibrated", m.odometry_calibrated)?;
     c.in_range(
         "failed_tasks",
         f64::from(m.failed_tasks),

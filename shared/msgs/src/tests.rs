@@ -493,8 +493,18 @@ fn mission_state_rejects_bad_fields() {
         has_next: 0,
         failed_tasks: 0,
         odometry_offset: [0.1, -0.2, 0.05],
+        odometry_calibrated: 1,
     };
     assert_eq!(check(&ok), Ok(()));
+    assert_rejected(
+        &MissionState {
+            odometry_calibrated: 2,
+            ..ok
+        },
+        "odometry_calibrated",
+        None,
+        unknown_code,
+    );
     let mut m = ok;
     m.odometry_offset[2] = 4.0;
     assert_rejected(&m, "odometry_offset", Some(2), out_of_range);

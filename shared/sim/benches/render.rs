@@ -70,6 +70,7 @@ fn frame_input<'a>(
         object_height: 0.435,
         target_hint: None,
         neighbours: &[],
+        layout_trusted: false,
         colour: motm_core::perception::BlobColour::Red,
     }
 }

@@ -225,6 +225,7 @@ mod tests {
                     has_next: 0,
                     failed_tasks,
                     odometry_offset: [0.0; 3],
+                    odometry_calibrated: 0,
                 }),
                 ..SimWorldInputs::default()
             };

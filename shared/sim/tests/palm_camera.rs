@@ -75,6 +75,7 @@ fn observe(
         object_height: CUBE_Z,
         target_hint: None,
         neighbours: &[],
+        layout_trusted: false,
         colour: motm_core::perception::BlobColour::Red,
     })
 }

@@ -75,6 +75,7 @@ fn mission_state(tasks: &[MissionTask], index: usize, now_ns: u64) -> msgs::Miss
         current_target: task.map_or_else(Vector3::zeros, |t| t.position),
         next_target: task.and_then(|_| tasks.get(index + 1).map(|t| t.position)),
         odometry_offset: [0.0; 3],
+        odometry_calibrated: false,
         tool_to_target: f64::INFINITY,
         failed_tasks: 0,
         changed: false,
@@ -159,6 +160,7 @@ impl Task for ReactiveTask {
             target: task.position,
             next_waypoint: task.position,
             odometry_offset: [0.0; 3],
+            odometry_calibrated: false,
         };
         let perceived = inputs.target.as_ref().map(convert::perceived);
         let target = self.selector.select(&view, perceived.as_ref());

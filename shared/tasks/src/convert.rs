@@ -39,6 +39,7 @@ pub fn mission_state(out: &MissionTrackerOutput) -> msgs::MissionState {
         m.has_next = 1;
     }
     m.odometry_offset = out.odometry_offset;
+    m.odometry_calibrated = out.odometry_calibrated.into();
     m.failed_tasks = out.failed_tasks as u32;
     m
 }
@@ -81,6 +82,7 @@ pub fn mission_report(m: &msgs::MissionState) -> Option<MissionReport> {
         target: Vector3::from(m.current_target),
         next_waypoint: (m.has_next == 1).then(|| Vector3::from(m.next_target)),
         odometry_offset: m.odometry_offset,
+        odometry_calibrated: m.odometry_calibrated == 1,
     })
 }
 

@@ -96,6 +96,7 @@ impl MissionSequencerTask {
             target: now.current_target,
             next_waypoint: now.next_target.unwrap_or(now.current_target),
             odometry_offset: now.odometry_offset,
+            odometry_calibrated: now.odometry_calibrated,
         }
     }
 }

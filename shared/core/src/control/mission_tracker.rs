@@ -72,6 +72,8 @@ pub struct MissionTrackerOutput {
     pub next_target: Option<Vector3<f64>>,
     /// The odometry frame against the world, `[x, y, yaw]` ([`OdometryCorrection::offset`]).
     pub odometry_offset: [f64; 3],
+    /// The odometry correction predicts its drift ([`OdometryCorrection::calibrated`]).
+    pub odometry_calibrated: bool,
     /// Tool-to-aim distance this cycle, m (infinite when it could not be computed).
     pub tool_to_target: f64,
     /// Tasks given up so far.
@@ -137,6 +139,7 @@ impl MissionTracker {
                     .to_odometry(&self.mission.next_waypoint(&t.position))
             }),
             odometry_offset: self.correction.offset(),
+            odometry_calibrated: self.correction.calibrated(),
             tool_to_target,
             failed_tasks: self.mission.failed_tasks(),
             changed,
@@ -148,6 +151,7 @@ impl MissionTracker {
         let Some(task) = self.mission.current_task().copied() else {
             return self.output(f64::INFINITY, false);
         };
+        self.correction.advance(&input.base);
         if input.gave_up && self.mission.give_up() {
             return self.output(f64::INFINITY, true);
         }

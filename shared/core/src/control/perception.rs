@@ -206,6 +206,11 @@ pub struct PerceptionInput<'a> {
     /// (in the same frame as the hint): the first fix is the blob that, taken for the target,
     /// best explains the blobs around it ([`PerceptionConfig::constellation_tolerance`]).
     pub neighbours: &'a [Vector3<f64>],
+    /// The hint and the neighbours are good to well under half the spacing of the objects
+    /// (the odometry correction predicts its drift): before the first fix, a blob nearer a
+    /// neighbour than the hint is then that neighbour. Otherwise the known layout may be a
+    /// whole spacing or more off, and the view decides.
+    pub layout_trusted: bool,
 }
 
 /// What perception reports after each image.
@@ -481,14 +486,19 @@ impl Perception {
         let hint = input
             .target_hint
             .filter(|_| !tracked && !input.neighbours.is_empty());
-        // Once tracked, the known neighbours are where the mission knows them, moved by the
-        // offset the target's estimate shows from its own known position: a blob nearer one of
-        // them than the target's prior is that neighbour (in a row of cubes the target may
-        // leave the view while the cube beside it, within the gate, stays in it).
-        let offset = input
-            .target_hint
-            .filter(|_| tracked)
-            .map(|h| self.estimate.position - h);
+        // The known neighbours are where the mission knows them (once tracked, moved by the
+        // offset the target's estimate shows from its own known position; before, only when
+        // the layout is trusted): a blob nearer one of them than the target's prior is that
+        // neighbour. In a row of cubes the target may be out of the view while the cubes
+        // beside it, within the gate, are in it; a view of the row's far end then explains a
+        // shift of whole spacings as well as none.
+        let offset = input.target_hint.and_then(|h| {
+            if tracked {
+                Some(self.estimate.position - h)
+            } else {
+                input.layout_trusted.then(Vector3::zeros)
+            }
+        });
         let nearest_neighbour = |fix: &Vector3<f64>| {
             offset.and_then(|offset| {
                 input
@@ -752,6 +762,7 @@ mod tests {
             object_height: 0.0,
             target_hint: None,
             neighbours: &[],
+            layout_trusted: false,
             colour: BlobColour::Red,
         }
     }
@@ -801,6 +812,34 @@ mod tests {
         first.neighbours = &[];
         let without = Perception::new(config, calibration()).step(&first).position;
         assert!((without - row[1]).norm() < 1e-9, "{without}");
+    }
+
+    #[test]
+    fn with_a_trusted_layout_a_blob_nearer_a_neighbour_than_the_hint_is_that_neighbour() {
+        // The target is out of the view; two cubes of the row beyond it are in it. Taken for the
+        // target shifted by two spacings, the nearer one explains the other as its neighbour.
+        let centres = [(160, 119), (220, 119)];
+        let image = image_with_squares(&centres, 3);
+        let fix_of = |c: (usize, usize)| {
+            let mut p = Perception::new(PerceptionConfig::default(), calibration());
+            p.step(&input(&image_with_squares(&[c], 3), 0.0)).position
+        };
+        let (a, b) = (fix_of(centres[0]), fix_of(centres[1]));
+        let step = b - a;
+        let config = PerceptionConfig {
+            max_prior_distance: 10.0,
+            constellation_tolerance: step.norm() / 3.0,
+            ..PerceptionConfig::default()
+        };
+        let neighbours = [a - step, a, b];
+        let mut first = input(&image, 0.0);
+        first.target_hint = Some(a - 2.0 * step);
+        first.neighbours = &neighbours;
+        let untrusted = Perception::new(config, calibration()).step(&first);
+        assert!(untrusted.valid && (untrusted.position - a).norm() < 1e-9);
+        first.layout_trusted = true;
+        let trusted = Perception::new(config, calibration()).step(&first);
+        assert!(!trusted.valid, "{trusted:?}");
     }
 
     #[test]

@@ -56,6 +56,9 @@ pub struct MissionView {
     /// ([`crate::localization::OdometryCorrection::offset`]): the targets are already in
     /// odometry, the rest of the known layout is corrected with this.
     pub odometry_offset: [f64; 3],
+    /// The odometry correction predicts its drift
+    /// ([`crate::localization::OdometryCorrection::calibrated`]).
+    pub odometry_calibrated: bool,
 }
 
 impl MissionView {
@@ -92,6 +95,8 @@ pub struct MissionReport {
     pub next_waypoint: Option<Vector3<f64>>,
     /// The odometry frame against the world, `[x, y, yaw]`.
     pub odometry_offset: [f64; 3],
+    /// The odometry correction predicts its drift.
+    pub odometry_calibrated: bool,
 }
 
 /// Turns mission reports into [`MissionView`]s, remembering the last task so that the services
@@ -129,6 +134,7 @@ impl MissionLatch {
                 task_count: report.task_count,
                 phase: Phase::Complete,
                 odometry_offset: report.odometry_offset,
+                odometry_calibrated: report.odometry_calibrated,
                 ..last
             });
         }
@@ -150,6 +156,7 @@ impl MissionLatch {
             target: report.target,
             next_waypoint,
             odometry_offset: report.odometry_offset,
+            odometry_calibrated: report.odometry_calibrated,
         };
         self.last = Some(view);
         Some(view)

@@ -157,6 +157,7 @@ impl PerceptionCycle {
                 BlobColour::Red
             },
             neighbours: &self.neighbours,
+            layout_trusted: mission.odometry_calibrated,
         });
         if estimate.visible {
             self.fix_stamp_ns = frame.stamp_ns;

@@ -33,6 +33,7 @@ fn view(task_index: usize, kind: TaskKind, phase: Phase) -> MissionView {
         target: Vector3::new(2.0, 0.0, 0.45),
         next_waypoint: Vector3::new(4.0, 0.0, 0.35),
         odometry_offset: [0.0; 3],
+        odometry_calibrated: false,
     }
 }
 
@@ -47,6 +48,7 @@ fn latch_keeps_the_last_task_after_completion_and_fills_in_run_out_points() {
         target: Vector3::new(2.0, 0.0, 0.45),
         next_waypoint: None,
         odometry_offset: [0.0; 3],
+        odometry_calibrated: false,
     };
     // A completed mission whose tasks this process never saw: nothing to act on.
     let complete = MissionReport {
