@@ -490,12 +490,16 @@ impl Reacher {
         tool_side.abs() > margin && goal_side.abs() > margin && tool_side * goal_side < 0.0
     }
 
-    /// Holding: the twist of the ready pose carried by the base, plus a proportional pull back to
-    /// it.
+    /// Holding: the tool carried by the base as if fixed to it where it is, plus a proportional
+    /// pull back to the ready pose. The feed-forward is the base's velocity at the tool's own
+    /// point, not at the ready pose's: after a pick behind the base's side the tool is far from
+    /// the ready pose, and carried at the ready pose's velocity while the base turns it would
+    /// sweep across the back of the base (the difference is the turn rate times the lever
+    /// between the two points), folding the arm over itself.
     fn hold(&self, input: &ReacherInput, transit_time: f64) -> ReacherOutput {
         let base = &input.base;
         let ready = base.isometry() * self.ready_tool;
-        let lever = ready.translation.vector - Vector3::new(base.x, base.y, 0.0);
+        let lever = input.tool.pose.translation.vector - Vector3::new(base.x, base.y, 0.0);
         let yaw_rate = Vector3::z() * input.base_velocity.omega;
         let carried = Vector3::new(base.yaw.cos(), base.yaw.sin(), 0.0) * input.base_velocity.v
             + yaw_rate.cross(&lever);
@@ -673,6 +677,47 @@ mod tests {
             .iter()
             .position(|s| s.output.mode == ReachMode::Reaching)
             .expect("the reacher never started")
+    }
+
+    #[test]
+    fn a_tool_held_behind_the_base_while_it_turns_moves_only_toward_the_ready_pose() {
+        // After a pick at the base's right rear, the base turns left hard while the
+        // target is far: the tool must move, relative to the base, straight toward the ready
+        // pose, not be swept across the base's back by the turn.
+        let mut reacher = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool());
+        let base = BasePose::new(1.0, 2.0, 0.3);
+        let omega = 0.5;
+        let tool_in_base = Vector3::new(-0.2, -0.56, 0.55);
+        let tool = base.isometry() * Isometry3::from_parts(tool_in_base.into(), top_down(0.0));
+        let out = reacher
+            .step(&ReacherInput {
+                task_index: 0,
+                base,
+                base_velocity: BaseVelocity { v: 0.3, omega },
+                tool: ToolState {
+                    pose: tool,
+                    twist: Twist::zeros(),
+                    acceleration: Vector6::zeros(),
+                },
+                target: TargetEstimate::fixed(Vector3::new(20.0, 2.0, 0.45)),
+                target_yaw: None,
+                time_to_range: 60.0,
+                range_entry_pose: BasePose::new(20.0, 2.6, 0.0),
+                dt: DT,
+            })
+            .unwrap();
+        assert_eq!(out.mode, ReachMode::Holding);
+        // The tool's velocity relative to the base, in the base frame: the world velocity less
+        // the base's rigid-body velocity at the tool, turned into the base frame.
+        let lever = tool.translation.vector - Vector3::new(base.x, base.y, 0.0);
+        let carried = Vector3::new(base.yaw.cos(), base.yaw.sin(), 0.0) * 0.3
+            + (Vector3::z() * omega).cross(&lever);
+        let world = out.twist.fixed_rows::<3>(0).into_owned();
+        let relative = base.isometry().inverse_transform_vector(&(world - carried));
+        let to_ready = ready_tool().translation.vector - tool_in_base;
+        let across = relative.cross(&to_ready.normalize()).norm();
+        assert!(relative.dot(&to_ready) > 0.0, "{relative}");
+        assert!(across < 1e-9, "{relative} is not toward {to_ready}");
     }
 
     #[test]
