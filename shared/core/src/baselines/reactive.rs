@@ -255,8 +255,10 @@ impl ReactiveBaseline {
 
     /// Caps the forward speed so the base can still stop short of any pick platform that lies
     /// ahead in its path (within `base_corridor` of its heading line): `base_standoff` short of
-    /// the current target's, `platform_clearance` short of earlier ones.
-    fn clamp_forward_speed(&self, base: &BasePose, v: f64) -> f64 {
+    /// the current target where it is seen (`target`: the known position can be metres of drift
+    /// or a neighbour's spacing off, and a stand-off from it can hold the base out of the arm's
+    /// reach of the cube for good), `platform_clearance` short of earlier ones.
+    fn clamp_forward_speed(&self, base: &BasePose, target: &Vector3<f64>, v: f64) -> f64 {
         let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
         let from = nalgebra::Vector2::new(base.x, base.y);
         let last = (self.task + 1).min(self.tasks.len());
@@ -265,7 +267,12 @@ impl ReactiveBaseline {
             .enumerate()
             .filter(|(_, t)| t.kind == TaskKind::Pick)
             .filter_map(|(index, t)| {
-                let offset = t.position.xy() - from;
+                let position = if index == self.task {
+                    target
+                } else {
+                    &t.position
+                };
+                let offset = position.xy() - from;
                 let along = offset.dot(&heading);
                 let beside = (offset - heading * along).norm();
                 let keep = if index == self.task {
@@ -343,7 +350,11 @@ impl ReactiveBaseline {
         let base = match self.escape_turn(&input.base, &goal) {
             Some(omega) => BaseVelocity { v: 0.0, omega },
             None => BaseVelocity {
-                v: self.clamp_forward_speed(&input.base, out.base.v * scale),
+                v: self.clamp_forward_speed(
+                    &input.base,
+                    &input.target.position,
+                    out.base.v * scale,
+                ),
                 omega: out.base.omega * scale,
             },
         };
@@ -504,6 +515,24 @@ mod tests {
         let mut far = exp1_baseline();
         let out = step_at(&mut far, BasePose::default(), Vector3::new(2.0, 0.0, 0.45));
         assert!((out.base.v - far.config.max_base_speed).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_stand_off_is_from_where_the_cube_is_seen() {
+        // The cube is seen 0.8 m beyond its known position: inside the known position's
+        // stand-off the base still drives on toward it.
+        let mut baseline = exp1_baseline();
+        let inside_known_standoff = BasePose {
+            x: 1.5,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(
+            &mut baseline,
+            inside_known_standoff,
+            Vector3::new(2.8, 0.0, 0.45),
+        );
+        assert!(out.base.v > 0.05, "v = {}", out.base.v);
     }
 
     #[test]
