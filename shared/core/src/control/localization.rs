@@ -30,6 +30,7 @@
 use nalgebra::{Rotation2, Vector2, Vector3};
 
 use crate::kinematics::BasePose;
+use crate::types::wrap_angle;
 
 /// Least angle turned in odometry, rad, before the yaw drift rate is estimated from it (half a
 /// turn: a two-anchor yaw of about a degree of noise is then a rate error below 0.6 %).
@@ -52,10 +53,8 @@ pub struct OdometryCorrection {
     last_pose: Option<BasePose>,
     /// Odometry yaw turned since the start (unwrapped), rad.
     turned: f64,
-    /// Estimated odometry yaw error per radian turned.
-    yaw_drift_rate: f64,
-    /// Whether `yaw_drift_rate` has been estimated.
-    calibrated: bool,
+    /// Estimated odometry yaw error per radian turned, once estimated.
+    yaw_drift_rate: Option<f64>,
 }
 
 /// A landmark task's known position and the running mean of where it is seen.
@@ -79,8 +78,7 @@ impl OdometryCorrection {
             anchors: Vec::with_capacity(2),
             last_pose: None,
             turned: 0.0,
-            yaw_drift_rate: 0.0,
-            calibrated: false,
+            yaw_drift_rate: None,
         }
     }
 
@@ -94,16 +92,16 @@ impl OdometryCorrection {
         let Some(last) = self.last_pose.replace(*base) else {
             return;
         };
-        let turn = wrap(base.yaw - last.yaw);
+        let turn = wrap_angle(base.yaw - last.yaw);
         self.turned += turn;
-        let drift = self.yaw_drift_rate * turn;
+        let drift = self.yaw_drift_rate.unwrap_or(0.0) * turn;
         if drift == 0.0 {
             return;
         }
         let rotation = Rotation2::new(drift);
         let pivot = Vector2::new(base.x, base.y);
         let turn_about = |p: Vector2<f64>| rotation * (p - pivot) + pivot;
-        self.yaw = wrap(self.yaw + drift);
+        self.yaw = wrap_angle(self.yaw + drift);
         self.translation = turn_about(self.translation);
         for anchor in &mut self.anchors {
             anchor.seen = turn_about(anchor.seen);
@@ -113,14 +111,14 @@ impl OdometryCorrection {
     /// Estimated odometry yaw error per radian turned (0 until the base has turned
     /// [`MIN_TURN_FOR_RATE`] and two anchors fixed the yaw).
     pub fn yaw_drift_rate(&self) -> f64 {
-        self.yaw_drift_rate
+        self.yaw_drift_rate.unwrap_or(0.0)
     }
 
     /// Whether the yaw drift rate has been estimated, so that the correction is predicted
     /// between fixes: known positions are then good to a few centimetres, where before they
     /// may be a lap's drift off.
     pub fn calibrated(&self) -> bool {
-        self.calibrated
+        self.yaw_drift_rate.is_some()
     }
 
     /// Where a world point is in the odometry frame (its height unchanged).
@@ -163,15 +161,15 @@ impl OdometryCorrection {
             let known = b.known - a.known;
             let seen = b.seen - a.seen;
             if known.norm() >= self.baseline && seen.norm() >= 0.5 * self.baseline {
-                self.yaw = wrap(seen.y.atan2(seen.x) - known.y.atan2(known.x));
+                self.yaw = wrap_angle(seen.y.atan2(seen.x) - known.y.atan2(known.x));
                 let rotation = Rotation2::new(self.yaw);
                 let known_mid = 0.5 * (a.known + b.known);
                 let seen_mid = 0.5 * (a.seen + b.seen);
                 self.translation = seen_mid - rotation * known_mid;
                 if self.turned.abs() >= MIN_TURN_FOR_RATE {
-                    self.yaw_drift_rate =
-                        (self.yaw / self.turned).clamp(-MAX_YAW_DRIFT_RATE, MAX_YAW_DRIFT_RATE);
-                    self.calibrated = true;
+                    self.yaw_drift_rate = Some(
+                        (self.yaw / self.turned).clamp(-MAX_YAW_DRIFT_RATE, MAX_YAW_DRIFT_RATE),
+                    );
                 }
                 return;
             }
@@ -185,16 +183,6 @@ impl OdometryCorrection {
 pub fn world_to_odometry(offset: &[f64; 3], world: &Vector3<f64>) -> Vector3<f64> {
     let xy = Rotation2::new(offset[2]) * world.xy() + Vector2::new(offset[0], offset[1]);
     Vector3::new(xy.x, xy.y, world.z)
-}
-
-/// `angle` in (−π, π].
-fn wrap(angle: f64) -> f64 {
-    let a = angle.rem_euclid(std::f64::consts::TAU);
-    if a > std::f64::consts::PI {
-        a - std::f64::consts::TAU
-    } else {
-        a
-    }
 }
 
 #[cfg(test)]

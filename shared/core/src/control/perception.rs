@@ -777,6 +777,13 @@ mod tests {
     }
 
     /// A grey image with red squares of `half` pixels half-size at the given pixel centres.
+    /// The fix of a lone red square of half-size `half` centred on pixel `centre`.
+    fn fix_of_square(centre: (usize, usize), half: usize) -> Vector3<f64> {
+        let mut p = Perception::new(PerceptionConfig::default(), calibration());
+        p.step(&input(&image_with_squares(&[centre], half), 0.0))
+            .position
+    }
+
     fn image_with_squares(centres: &[(usize, usize)], half: usize) -> Vec<u8> {
         let (w, h) = (320, 240);
         let mut image = vec![100u8; w * h * 3];
@@ -828,10 +835,7 @@ mod tests {
         // nearest to the hint.
         let centres = [(100, 119), (160, 119), (220, 119)];
         let image = image_with_squares(&centres, 3);
-        let fix_of = |c: (usize, usize)| {
-            let mut p = Perception::new(PerceptionConfig::default(), calibration());
-            p.step(&input(&image_with_squares(&[c], 3), 0.0)).position
-        };
+        let fix_of = |c: (usize, usize)| fix_of_square(c, 3);
         let row: Vec<_> = centres.iter().map(|&c| fix_of(c)).collect();
         let step = row[1] - row[0];
         let error = 0.6 * step;
@@ -858,10 +862,7 @@ mod tests {
         // target shifted by two spacings, the nearer one explains the other as its neighbour.
         let centres = [(160, 119), (220, 119)];
         let image = image_with_squares(&centres, 3);
-        let fix_of = |c: (usize, usize)| {
-            let mut p = Perception::new(PerceptionConfig::default(), calibration());
-            p.step(&input(&image_with_squares(&[c], 3), 0.0)).position
-        };
+        let fix_of = |c: (usize, usize)| fix_of_square(c, 3);
         let (a, b) = (fix_of(centres[0]), fix_of(centres[1]));
         let step = b - a;
         let config = PerceptionConfig {
@@ -883,10 +884,7 @@ mod tests {
     #[test]
     fn a_tracked_target_is_not_taken_for_its_merge_with_a_neighbour() {
         let (target, neighbour) = ((140, 119), (200, 119));
-        let fix_of = |c: (usize, usize)| {
-            let mut p = Perception::new(PerceptionConfig::default(), calibration());
-            p.step(&input(&image_with_squares(&[c], 2), 0.0)).position
-        };
+        let fix_of = |c: (usize, usize)| fix_of_square(c, 2);
         let neighbours = [fix_of(neighbour)];
         let config = PerceptionConfig {
             max_prior_distance: 10.0,
