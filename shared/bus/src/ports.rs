@@ -371,6 +371,9 @@ impl<M: Message> Connectable for SubscriberPorts<M> {
 trait HasListener {
     /// The listener (always present for ports behind a [`Trigger`]).
     fn listener(&self) -> &Listener<ipc::Service>;
+
+    /// Whether samples wait to be received (`true` when that cannot be told).
+    fn has_samples(&self) -> bool;
 }
 
 impl<M: Message> HasListener for SubscriberPorts<M> {
@@ -378,6 +381,10 @@ impl<M: Message> HasListener for SubscriberPorts<M> {
         self.listener
             .as_ref()
             .expect("a trigger is only made for a subscriber with a listener")
+    }
+
+    fn has_samples(&self) -> bool {
+        self.subscriber.has_samples().unwrap_or(true)
     }
 }
 
@@ -395,6 +402,12 @@ impl Trigger {
     /// Consumes pending notifications without blocking (else the WaitSet wakes again).
     pub fn clear(&self) {
         let _ = self.listener().try_wait(|_| {});
+    }
+
+    /// Whether a sample waits on the subscriber. A notification can outlive its sample: a
+    /// cycle that ran between the publisher's send and its notify has already taken it.
+    pub fn has_samples(&self) -> bool {
+        self.ports.has_samples()
     }
 }
 

@@ -287,7 +287,8 @@ impl<'bus> ServiceLoop<'bus> {
         let result = process_until_signalled(&waitset, |id| {
             if id.has_event_from(&on_data) {
                 trigger.clear();
-                if self.cycle(None, &mut step) == Flow::Stop {
+                // A notification whose sample an earlier cycle already took wakes no cycle.
+                if trigger.has_samples() && self.cycle(None, &mut step) == Flow::Stop {
                     stopped = true;
                     return CallbackProgression::Stop;
                 }
@@ -349,6 +350,8 @@ impl<'bus> ServiceLoop<'bus> {
                 for trigger in triggers {
                     trigger.clear();
                 }
+                // A notification whose sample an earlier cycle already took wakes no cycle.
+                arrived = triggers.iter().any(Trigger::has_samples);
             }
             let now = monotonic_now_ns();
             if arrived || now >= last_cycle_ns + period_ns {
