@@ -277,12 +277,19 @@ pub const QP_RESOLVER_STANDBY: TaskSpec = TaskSpec {
     ..QP_RESOLVER
 };
 
-/// The watchdog (it also reads every process's heartbeat).
+/// The watchdog: the two command streams and the heartbeat of every control-path task (the
+/// ones a stack config leaves out are not expected).
 pub const WATCHDOG: TaskSpec = TaskSpec {
     name: "watchdog",
     inputs: &[
         t::ARM_VELOCITY_COMMAND.spec(),
         t::BASE_VELOCITY_COMMAND.spec(),
+        t::HEARTBEAT_PANDA_DRIVER.spec(),
+        t::HEARTBEAT_LD60_DRIVER.spec(),
+        t::HEARTBEAT_REACHER.spec(),
+        t::HEARTBEAT_FINAL_PHASE.spec(),
+        t::HEARTBEAT_QP_RESOLVER.spec(),
+        t::HEARTBEAT_QP_RESOLVER_STANDBY.spec(),
     ],
     outputs: &[t::SAFETY_SAFE_STOP.spec()],
     rate: Rate::Hz(1000.0),
@@ -442,9 +449,9 @@ pub fn wakes_readers(topic: &str) -> bool {
     GRAPH.iter().any(|t| t.triggered_by(topic))
 }
 
-/// The control tasks a replay log rebuilds and replays: every row that is not the simulator's
-/// and whose logic is a [`crate::Task`] (the watchdog's loop is its own: it reads the heartbeat
-/// of every process the stack config names, which its ports cannot declare).
+/// The control tasks a replay log rebuilds and replays: every row but the simulator's and the
+/// watchdog's. The watchdog supervises the deployed processes (their heartbeats' arrival), not
+/// the control loop: it has nothing to check in a log, and its 1 kHz cycles are not recorded.
 ///
 /// A hot standby is not replayed: it is its primary's logic again, fed the same samples, and
 /// the in-process runtime (which has no process to lose) runs the primary alone.
@@ -462,6 +469,19 @@ pub fn standbys_of(name: &str) -> impl Iterator<Item = &'static TaskSpec> {
 /// The tasks that run as processes of their own, in start order.
 pub fn processes() -> impl Iterator<Item = &'static TaskSpec> {
     GRAPH.iter().filter(|t| t.is_process())
+}
+
+/// Whether the runtime records the cycles of task `spec` for replay logs: every task's but the
+/// watchdog's (see [`replayed_tasks`]).
+pub fn records_cycles(spec: &TaskSpec) -> bool {
+    spec.name != WATCHDOG.name
+}
+
+/// The task whose process publishes heartbeat topic `topic` (every process's service loop
+/// publishes its own, `motm_msgs::services::heartbeat(name)`).
+pub fn heartbeat_of(topic: &str) -> Option<&'static TaskSpec> {
+    let name = topic.strip_prefix(motm_msgs::services::HEARTBEAT_PREFIX)?;
+    task(name.strip_prefix('/')?).filter(|t| t.is_process())
 }
 
 /// Every topic some task or the supervisor publishes, once each, in table order (the logger's
@@ -488,7 +508,7 @@ mod tests {
         for spec in GRAPH {
             for input in spec.inputs {
                 assert!(
-                    published.contains(input),
+                    published.contains(input) || heartbeat_of(input.name).is_some(),
                     "{} reads {} which no task publishes",
                     spec.name,
                     input.name
@@ -509,6 +529,34 @@ mod tests {
         names.sort_unstable();
         names.dedup();
         assert_eq!(names.len(), GRAPH.len());
+    }
+
+    #[test]
+    fn the_watchdog_reads_the_heartbeat_of_every_control_path_task_and_the_commands() {
+        let mut watched: Vec<&str> = WATCHDOG
+            .inputs
+            .iter()
+            .filter_map(|topic| heartbeat_of(topic.name))
+            .map(|t| t.name)
+            .collect();
+        let mut control_path: Vec<&str> = GRAPH
+            .iter()
+            .filter(|t| t.control_path)
+            .map(|t| t.name)
+            .collect();
+        watched.sort_unstable();
+        control_path.sort_unstable();
+        assert_eq!(watched, control_path);
+        for topic in WATCHDOG.inputs {
+            if let Some(task) = heartbeat_of(topic.name) {
+                assert_eq!(topic.name, motm_msgs::services::heartbeat(task.name));
+            }
+        }
+        assert_eq!(WATCHDOG.inputs.len(), control_path.len() + 2);
+        assert!(WATCHDOG.reads(t::ARM_VELOCITY_COMMAND.name()));
+        assert!(WATCHDOG.reads(t::BASE_VELOCITY_COMMAND.name()));
+        assert!(heartbeat_of("motm/v1/heartbeat/mission").is_none());
+        assert!(heartbeat_of(t::ARM_JOINT_STATE.name()).is_none());
     }
 
     #[test]

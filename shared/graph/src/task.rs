@@ -20,6 +20,12 @@ pub trait Task {
 
     /// One cycle at monotonic time `now_ns` (the same clock the message stamps use).
     fn step(&mut self, now_ns: u64, inputs: &Self::Inputs) -> Self::Outputs;
+
+    /// What the last step has for the operator (a change of state), if anything. A task never
+    /// prints: the deployed runtime prints this after the cycle.
+    fn notice(&self) -> Option<&str> {
+        None
+    }
 }
 
 /// Where a runtime takes samples from: an iceoryx2 node or the in-memory bus. Every sample is

@@ -124,4 +124,22 @@ pub mod topics {
     pub const SUPERVISOR_SWAP_STATUS: Topic<SwapStatus> = Topic::new(s::SUPERVISOR_SWAP_STATUS);
     /// What each task cycle consumed and produced, from every task process.
     pub const REPLAY_CYCLES: Topic<TaskCycle> = Topic::new(s::REPLAY_CYCLES);
+
+    // The heartbeats the watchdog watches: every process's service loop publishes one on
+    // `services::heartbeat(name)`; these are the control path's (a test checks the names).
+
+    /// Heartbeat of the arm driver.
+    pub const HEARTBEAT_PANDA_DRIVER: Topic<Heartbeat> =
+        Topic::new("motm/v1/heartbeat/panda-driver");
+    /// Heartbeat of the base driver.
+    pub const HEARTBEAT_LD60_DRIVER: Topic<Heartbeat> = Topic::new("motm/v1/heartbeat/ld60-driver");
+    /// Heartbeat of the reacher.
+    pub const HEARTBEAT_REACHER: Topic<Heartbeat> = Topic::new("motm/v1/heartbeat/reacher");
+    /// Heartbeat of the final phase.
+    pub const HEARTBEAT_FINAL_PHASE: Topic<Heartbeat> = Topic::new("motm/v1/heartbeat/final-phase");
+    /// Heartbeat of the QP resolver.
+    pub const HEARTBEAT_QP_RESOLVER: Topic<Heartbeat> = Topic::new("motm/v1/heartbeat/qp-resolver");
+    /// Heartbeat of the QP resolver's hot standby.
+    pub const HEARTBEAT_QP_RESOLVER_STANDBY: Topic<Heartbeat> =
+        Topic::new("motm/v1/heartbeat/qp-resolver-standby");
 }

@@ -280,7 +280,8 @@ impl Sink for BusPorts {
 pub struct TaskPorts<T: Task> {
     ports: BusPorts,
     inputs: T::Inputs,
-    cycles: CycleLog,
+    /// `None` for a task whose cycles are not recorded ([`motm_graph::records_cycles`]).
+    cycles: Option<CycleLog>,
 }
 
 impl<T: Task> TaskPorts<T> {
@@ -289,20 +290,21 @@ impl<T: Task> TaskPorts<T> {
         Ok(Self {
             ports: BusPorts::open::<T::Inputs, T::Outputs>(bus, spec)?,
             inputs: T::Inputs::default(),
-            cycles: CycleLog::open(bus, spec)?,
+            cycles: motm_graph::records_cycles(spec)
+                .then(|| CycleLog::open(bus, spec))
+                .transpose()?,
         })
     }
 
     /// One cycle at `now_ns`: empties the queued inputs, takes in what arrived, steps `task`,
-    /// publishes its outputs and then the cycle's [`msgs::TaskCycle`] record.
+    /// publishes its outputs and then the cycle's [`msgs::TaskCycle`] record (when recorded).
     pub fn step(&mut self, task: &mut T, now_ns: u64) {
         self.inputs.clear_queues();
         self.inputs.read(&mut self.ports);
         self.ports.produced.clear();
         task.step(now_ns, &self.inputs).write(&mut self.ports);
-        if let Err(e) = self
-            .cycles
-            .publish(now_ns, &self.inputs, &self.ports.produced)
+        if let Some(cycles) = &mut self.cycles
+            && let Err(e) = cycles.publish(now_ns, &self.inputs, &self.ports.produced)
         {
             self.ports.failed(e);
         }
@@ -497,8 +499,8 @@ pub fn run_task_while<T: Task>(
 pub const EXIT_FAILED: u8 = 1;
 
 /// The main of a service process: opens the bus as process `spec.name`, runs `task` with
-/// [`run_task`] until SIGTERM or SIGINT and prints the closing line (with `details` from the
-/// task); exits with [`EXIT_FAILED`] and a message naming the process when the bus fails.
+/// [`run_task`] until SIGTERM or SIGINT, printing the task's [`Task::notice`] after each
+/// cycle that has one, and prints the closing line (with `details` from the task); exits with [`EXIT_FAILED`] and a message naming the process when the bus fails.
 pub fn serve<T: Task>(
     spec: &TaskSpec,
     task: &mut T,
@@ -518,7 +520,12 @@ pub fn serve<T: Task>(
             "{name}: running at {} Hz, {trigger}",
             1.0 / config.period.as_secs_f64()
         );
-        run_task(&bus, task, spec, config)
+        run_task_while(&bus, task, spec, config, |task| {
+            if let Some(notice) = task.notice() {
+                motm_bus::say!("{name}: {notice}");
+            }
+            true
+        })
     });
     match result {
         Ok(report) => {

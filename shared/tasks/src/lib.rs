@@ -14,6 +14,7 @@
 //! | qp-resolver | [`resolver`] |
 //! | mission (in the supervisor) | [`mission`] |
 //! | panda-driver, ld60-driver | [`driver`] |
+//! | watchdog | [`watchdog`] |
 //!
 //! The final phase reports its task as done with `TwistCommand::progress == Done` (and the
 //! task's index); the mission task advances on that.
@@ -30,6 +31,7 @@ pub mod perception;
 pub mod reacher;
 pub mod resolver;
 pub mod view;
+pub mod watchdog;
 
 use motm_core::Robot;
 use motm_core::on_the_move::OnTheMoveConfig;

@@ -3,7 +3,7 @@
 use motm_graph::{GRAPH, PortSet, TaskSpec};
 use motm_msgs::TopicSpec;
 
-use crate::{base_planner, driver, final_phase, mission, perception, reacher, resolver};
+use crate::{base_planner, driver, final_phase, mission, perception, reacher, resolver, watchdog};
 
 fn same_topics(spec: &TaskSpec, inputs: &[TopicSpec], outputs: &[TopicSpec]) {
     let sorted = |topics: &[TopicSpec]| {
@@ -62,6 +62,11 @@ fn every_tasks_ports_are_its_row_of_the_graph() {
             "ld60-driver",
             driver::BaseDriverInputs::TOPICS,
             driver::BaseDriverOutputs::TOPICS,
+        ),
+        (
+            "watchdog",
+            watchdog::WatchdogInputs::TOPICS,
+            watchdog::WatchdogOutputs::TOPICS,
         ),
     ];
     for (name, inputs, outputs) in rows {
