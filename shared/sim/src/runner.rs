@@ -347,7 +347,7 @@ fn baseline_graph(
         let baseline = ReactiveBaseline::new(robot.clone(), reactive, tasks.clone());
         let mut s = hardware_graph(robot, sim, config, Some(&tasks))?;
         s.add(
-            ReactiveTask::new(baseline, tasks),
+            ReactiveTask::new(baseline, tasks, &config.motm.mission),
             &motm_graph::REACTIVE,
             motm_graph::REACTIVE.rate.hz(control),
         );

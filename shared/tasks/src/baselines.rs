@@ -9,10 +9,11 @@
 //! Both publish the mission state (the task they work on), which perception and the logs follow.
 
 use motm_core::kinematics::BasePose;
-use motm_core::mission::{MissionTask, Phase, TaskKind};
+use motm_core::localization::{Localizer, OdometryCorrection};
+use motm_core::mission::{MissionConfig, MissionTask, Phase, TaskKind};
 use motm_core::mission_tracker::MissionTrackerOutput;
 use motm_core::planning::PlanningController;
-use motm_core::reactive::{ReactiveBaseline, ReactiveInput};
+use motm_core::reactive::{ReactiveBaseline, ReactiveInput, ReactiveStage};
 use motm_core::resolver::RedundancyResolver;
 use motm_core::stack::{MissionView, TargetSelector, seconds};
 use motm_core::{GripperCommand, Robot, RobotState, TaskProgress};
@@ -60,9 +61,16 @@ ports! {
     }
 }
 
-/// The mission state of a baseline working on `tasks[index]` (complete past the end).
-fn mission_state(tasks: &[MissionTask], index: usize, now_ns: u64) -> msgs::MissionState {
+/// The mission state of a baseline working on `tasks[index]` (complete past the end), its
+/// known positions put into odometry by `correction` (`None`: odometry taken as the world).
+fn mission_state(
+    tasks: &[MissionTask],
+    index: usize,
+    correction: Option<&OdometryCorrection>,
+    now_ns: u64,
+) -> msgs::MissionState {
     let task = tasks.get(index);
+    let to_odometry = |p: &Vector3<f64>| correction.map_or(*p, |c| c.to_odometry(p));
     let out = MissionTrackerOutput {
         task_index: index.min(tasks.len()),
         task_count: tasks.len(),
@@ -72,10 +80,10 @@ fn mission_state(tasks: &[MissionTask], index: usize, now_ns: u64) -> msgs::Miss
         } else {
             Phase::Complete
         },
-        current_target: task.map_or_else(Vector3::zeros, |t| t.position),
-        next_target: task.and_then(|_| tasks.get(index + 1).map(|t| t.position)),
-        odometry_offset: [0.0; 3],
-        odometry_calibrated: false,
+        current_target: task.map_or_else(Vector3::zeros, |t| to_odometry(&t.position)),
+        next_target: task.and_then(|_| tasks.get(index + 1).map(|t| to_odometry(&t.position))),
+        odometry_offset: correction.map_or([0.0; 3], OdometryCorrection::offset),
+        odometry_calibrated: correction.is_some_and(OdometryCorrection::calibrated),
         tool_to_target: f64::INFINITY,
         failed_tasks: 0,
         changed: false,
@@ -102,20 +110,29 @@ fn commands(
     }
 }
 
-/// The reactive baseline task.
+/// The reactive baseline task. It localizes as the MotM mission does ([`Localizer`]): the known
+/// positions it publishes and keeps clear of are corrected into odometry with perception's
+/// landmark fixes (a container at each fix, a cube as the fingers start closing on it).
 pub struct ReactiveTask {
     baseline: ReactiveBaseline,
     tasks: Vec<MissionTask>,
     selector: TargetSelector,
+    localizer: Localizer,
 }
 
 impl ReactiveTask {
-    /// The baseline `baseline` over `tasks` (the same list it was built with).
-    pub fn new(baseline: ReactiveBaseline, tasks: Vec<MissionTask>) -> Self {
+    /// The baseline `baseline` over `tasks` (the same list it was built with), localizing
+    /// with the landmark settings of `mission`.
+    pub fn new(
+        baseline: ReactiveBaseline,
+        tasks: Vec<MissionTask>,
+        mission: &MissionConfig,
+    ) -> Self {
         Self {
             baseline,
             tasks,
             selector: TargetSelector,
+            localizer: Localizer::new(mission),
         }
     }
 
@@ -135,15 +152,21 @@ impl Task for ReactiveTask {
 
     fn step(&mut self, now_ns: u64, inputs: &BaselineInputs) -> BaselineOutputs {
         let index = self.baseline.task_index();
-        let mission = mission_state(&self.tasks, index, now_ns);
         let (Some(joints), Some(odometry), Some(gripper)) =
             (&inputs.joints, &inputs.odometry, &inputs.gripper)
         else {
+            let correction = self.localizer.correction();
             return BaselineOutputs {
-                mission: Some(mission),
+                mission: Some(mission_state(&self.tasks, index, Some(correction), now_ns)),
                 ..BaselineOutputs::default()
             };
         };
+        let base = convert::base_pose(odometry);
+        if index < self.tasks.len() {
+            self.localizer.advance(&base);
+        }
+        let correction = self.localizer.correction();
+        let mission = mission_state(&self.tasks, index, Some(correction), now_ns);
         let last = self.tasks.last().copied();
         let Some(task) = self.tasks.get(index).copied().or(last) else {
             return BaselineOutputs::default();
@@ -157,20 +180,30 @@ impl Task for ReactiveTask {
             } else {
                 Phase::Complete
             },
-            target: task.position,
-            next_waypoint: task.position,
-            odometry_offset: [0.0; 3],
-            odometry_calibrated: false,
+            target: correction.to_odometry(&task.position),
+            next_waypoint: correction.to_odometry(&task.position),
+            odometry_offset: correction.offset(),
+            odometry_calibrated: correction.calibrated(),
         };
         let perceived = inputs.target.as_ref().map(convert::perceived);
-        let target = self.selector.select(&view, perceived.as_ref());
+        let selected = self.selector.select_with_source(&view, perceived.as_ref());
+        let before = self.baseline.stage();
         let out = self.baseline.step(&ReactiveInput {
             t: seconds(now_ns),
-            base: convert::base_pose(odometry),
+            base,
             arm_q: convert::arm_q(joints),
             gripper_opening: gripper.width,
-            target,
+            target: selected.target,
+            odometry_offset: correction.offset(),
         });
+        if let Some(stamp) = selected.image_stamp_ns {
+            // A cube is a landmark as the fingers start closing on it.
+            let grasp_begins = task.kind == TaskKind::Pick
+                && before == ReactiveStage::Descend
+                && out.stage == ReactiveStage::Gripper;
+            self.localizer
+                .locate(index, &task, &selected.target, grasp_begins, stamp);
+        }
         commands(now_ns, mission, &out.arm_qd, &out.base, out.gripper)
     }
 }
@@ -247,7 +280,7 @@ impl Task for PlanningTask {
         } else {
             (plan.gripper, 0)
         };
-        let mission = mission_state(&self.tasks, index, now_ns);
+        let mission = mission_state(&self.tasks, index, None, now_ns);
         commands(now_ns, mission, &resolved.arm_qd, &resolved.base, gripper)
     }
 }

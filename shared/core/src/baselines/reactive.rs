@@ -36,6 +36,7 @@ use serde::Deserialize;
 
 use crate::holistic::{HolisticConfig, HolisticController, HolisticInput};
 use crate::kinematics::BasePose;
+use crate::localization::world_to_odometry;
 use crate::mission::{MissionTask, TaskKind};
 use crate::reacher::{tool_yaw, top_down};
 use crate::resolver::ResolveStatus;
@@ -144,6 +145,9 @@ pub struct ReactiveInput<'a> {
     pub gripper_opening: f64,
     /// Estimate of the current task's target.
     pub target: TargetEstimate,
+    /// The odometry frame against the world (`[x, y, yaw]`,
+    /// [`crate::localization::OdometryCorrection::offset`]): where the known platforms are.
+    pub odometry_offset: [f64; 3],
 }
 
 /// One cycle's output.
@@ -203,6 +207,11 @@ impl ReactiveBaseline {
         }
     }
 
+    /// The stage within the current task.
+    pub fn stage(&self) -> ReactiveStage {
+        self.stage
+    }
+
     /// Index of the current task.
     pub fn task_index(&self) -> usize {
         self.task
@@ -258,7 +267,13 @@ impl ReactiveBaseline {
     /// the current target where it is seen (`target`: the known position can be metres of drift
     /// or a neighbour's spacing off, and a stand-off from it can hold the base out of the arm's
     /// reach of the cube for good), `platform_clearance` short of earlier ones.
-    fn clamp_forward_speed(&self, base: &BasePose, target: &Vector3<f64>, v: f64) -> f64 {
+    fn clamp_forward_speed(
+        &self,
+        base: &BasePose,
+        target: &Vector3<f64>,
+        offset: &[f64; 3],
+        v: f64,
+    ) -> f64 {
         let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
         let from = nalgebra::Vector2::new(base.x, base.y);
         let last = (self.task + 1).min(self.tasks.len());
@@ -268,9 +283,9 @@ impl ReactiveBaseline {
             .filter(|(_, t)| t.kind == TaskKind::Pick)
             .filter_map(|(index, t)| {
                 let position = if index == self.task {
-                    target
+                    *target
                 } else {
-                    &t.position
+                    world_to_odometry(offset, &t.position)
                 };
                 let offset = position.xy() - from;
                 let along = offset.dot(&heading);
@@ -291,14 +306,14 @@ impl ReactiveBaseline {
     /// The turn that takes the base out of an earlier pick platform's way, when one blocks it:
     /// the platform lies in the strip ahead within `platform_clearance`, and the turn is toward
     /// the side of `goal` (world point) relative to the platform.
-    fn escape_turn(&self, base: &BasePose, goal: &Vector3<f64>) -> Option<f64> {
+    fn escape_turn(&self, base: &BasePose, goal: &Vector3<f64>, offset: &[f64; 3]) -> Option<f64> {
         let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin());
         let from = nalgebra::Vector2::new(base.x, base.y);
         let to_goal = goal.xy() - from;
         self.tasks[..self.task.min(self.tasks.len())]
             .iter()
             .filter(|t| t.kind == TaskKind::Pick)
-            .map(|t| t.position.xy() - from)
+            .map(|t| world_to_odometry(offset, &t.position).xy() - from)
             .filter(|offset| {
                 let along = offset.dot(&heading);
                 let beside = (offset - heading * along).norm();
@@ -347,12 +362,14 @@ impl ReactiveBaseline {
             1.0
         };
         // The stand-off cuts the forward speed alone, so the base can still turn away.
-        let base = match self.escape_turn(&input.base, &goal) {
+        let offset = &input.odometry_offset;
+        let base = match self.escape_turn(&input.base, &goal, offset) {
             Some(omega) => BaseVelocity { v: 0.0, omega },
             None => BaseVelocity {
                 v: self.clamp_forward_speed(
                     &input.base,
                     &input.target.position,
+                    offset,
                     out.base.v * scale,
                 ),
                 omega: out.base.omega * scale,
@@ -458,6 +475,7 @@ mod tests {
             arm_q: &arm_q,
             gripper_opening: 0.08,
             target: TargetEstimate::fixed(target),
+            odometry_offset: [0.0; 3],
         })
     }
 
@@ -496,6 +514,7 @@ mod tests {
                 position: cube,
                 velocity: Vector3::new(0.045, 0.0, 0.0),
             },
+            odometry_offset: [0.0; 3],
         });
         assert!(out.position_error >= baseline.config.holistic.arrival_error);
         assert_eq!(out.stage, ReactiveStage::Descend);

@@ -30,7 +30,8 @@
 use nalgebra::{Rotation2, Vector2, Vector3};
 
 use crate::kinematics::BasePose;
-use crate::types::wrap_angle;
+use crate::mission::{MissionConfig, MissionTask, TaskKind};
+use crate::types::{TargetEstimate, wrap_angle};
 
 /// Least angle turned in odometry, rad, before the yaw drift rate is estimated from it (half a
 /// turn: a two-anchor yaw of about a degree of noise is then a rate error below 0.6 %).
@@ -175,6 +176,74 @@ impl OdometryCorrection {
             }
         }
         self.translation = newest.seen - Rotation2::new(self.yaw) * newest.known;
+    }
+}
+
+/// The odometry correction fed by the landmark rule: which of perception's fixes show an object
+/// standing where the mission knows it. The MotM mission tracker and the reactive baseline
+/// both localize with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Localizer {
+    correction: OdometryCorrection,
+    /// A cube is a landmark only while seen slower than this, m/s.
+    max_speed: f64,
+    /// A fix farther than this from the known position's prediction is not taken, m.
+    max_residual: f64,
+    /// The newest image stamp taken as a landmark fix.
+    last_fix_ns: Option<u64>,
+}
+
+impl Localizer {
+    /// A localizer with the mission's landmark settings.
+    pub fn new(config: &MissionConfig) -> Self {
+        Self {
+            correction: OdometryCorrection::new(
+                config.landmark_fix_weight,
+                config.landmark_baseline,
+            ),
+            max_speed: config.landmark_max_speed,
+            max_residual: config.landmark_max_residual,
+            last_fix_ns: None,
+        }
+    }
+
+    /// The correction.
+    pub fn correction(&self) -> &OdometryCorrection {
+        &self.correction
+    }
+
+    /// Predicts the correction for the base's move (see [`OdometryCorrection::advance`]).
+    pub fn advance(&mut self, base: &BasePose) {
+        self.correction.advance(base);
+    }
+
+    /// Feeds perception's fix `seen` (from the image stamped `stamp`) of task `index`, `task`,
+    /// to the correction when the task's object is a landmark at this moment: every new fix of
+    /// a container or a button; a cube's once, on the cycle its grasp begins (`grasp_begins`),
+    /// when it is seen standing still. A fix farther than `landmark_max_residual` from where
+    /// the correction puts the known position is another object, and is not taken.
+    pub fn locate(
+        &mut self,
+        index: usize,
+        task: &MissionTask,
+        seen: &TargetEstimate,
+        grasp_begins: bool,
+        stamp: u64,
+    ) {
+        let landmark = match task.kind {
+            TaskKind::Place | TaskKind::PressButton => {
+                self.last_fix_ns.is_none_or(|last| stamp > last)
+            }
+            TaskKind::Pick => grasp_begins && seen.velocity.norm() < self.max_speed,
+        };
+        let residual = (self.correction.to_odometry(&task.position) - seen.position)
+            .xy()
+            .norm();
+        if landmark && residual <= self.max_residual {
+            self.last_fix_ns = Some(self.last_fix_ns.map_or(stamp, |last| last.max(stamp)));
+            self.correction
+                .observe(index, &task.position, &seen.position);
+        }
     }
 }
 

@@ -14,7 +14,7 @@
 //!   point beyond the last one, so the base planner never needs the task list.
 //! - **Odometry frame.** The known positions are in the world, the controllers work in
 //!   odometry: the tracker corrects the known positions it publishes with the odometry
-//!   correction ([`OdometryCorrection`]), fed with perception's fixes of landmarks. Containers
+//!   correction ([`Localizer`]), fed with perception's fixes of landmarks. Containers
 //!   and buttons are landmarks for every fix of theirs; a cube is one only as its grasp begins,
 //!   if perception then sees it still (`landmark_max_speed`), because the robot is never told
 //!   which cubes move.
@@ -22,7 +22,7 @@
 use nalgebra::Vector3;
 
 use crate::kinematics::BasePose;
-use crate::localization::OdometryCorrection;
+use crate::localization::Localizer;
 use crate::mission::{Mission, MissionTask, Phase, TaskKind};
 use crate::on_the_move::OnTheMoveConfig;
 use crate::robot::Robot;
@@ -88,9 +88,7 @@ pub struct MissionTracker {
     robot: Robot,
     config: OnTheMoveConfig,
     mission: Mission,
-    correction: OdometryCorrection,
-    /// The newest image stamp taken as a landmark fix.
-    last_fix_ns: Option<u64>,
+    localizer: Localizer,
 }
 
 impl MissionTracker {
@@ -103,11 +101,7 @@ impl MissionTracker {
         start: Vector3<f64>,
     ) -> Self {
         Self {
-            correction: OdometryCorrection::new(
-                config.mission.landmark_fix_weight,
-                config.mission.landmark_baseline,
-            ),
-            last_fix_ns: None,
+            localizer: Localizer::new(&config.mission),
             mission: Mission::new(config.mission.clone(), tasks, start),
             robot,
             config,
@@ -132,14 +126,16 @@ impl MissionTracker {
             task_count: self.mission.tasks().len(),
             kind: task.map(|t| t.kind),
             phase: self.mission.phase(),
-            current_target: task
-                .map_or_else(Vector3::zeros, |t| self.correction.to_odometry(&t.position)),
+            current_target: task.map_or_else(Vector3::zeros, |t| {
+                self.localizer.correction().to_odometry(&t.position)
+            }),
             next_target: task.map(|t| {
-                self.correction
+                self.localizer
+                    .correction()
                     .to_odometry(&self.mission.next_waypoint(&t.position))
             }),
-            odometry_offset: self.correction.offset(),
-            odometry_calibrated: self.correction.calibrated(),
+            odometry_offset: self.localizer.correction().offset(),
+            odometry_calibrated: self.localizer.correction().calibrated(),
             tool_to_target,
             failed_tasks: self.mission.failed_tasks(),
             changed,
@@ -151,7 +147,7 @@ impl MissionTracker {
         let Some(task) = self.mission.current_task().copied() else {
             return self.output(f64::INFINITY, false);
         };
-        self.correction.advance(&input.base);
+        self.localizer.advance(&input.base);
         if input.gave_up && self.mission.give_up() {
             return self.output(f64::INFINITY, true);
         }
@@ -163,7 +159,7 @@ impl MissionTracker {
             {
                 estimate
             }
-            _ => TargetEstimate::fixed(self.correction.to_odometry(&task.position)),
+            _ => TargetEstimate::fixed(self.localizer.correction().to_odometry(&task.position)),
         };
         let finite = input.arm_q.len() == self.robot.arm_dof()
             && input.arm_q.iter().all(|q| q.is_finite())
@@ -189,41 +185,12 @@ impl MissionTracker {
         let (index, phase) = (self.mission.task_index(), self.mission.phase());
         let status = self.mission.step(tool_to_target, progress);
         if let Some(stamp) = input.fix_stamp_ns {
-            self.locate(index, &task, &target, (phase, status.phase), stamp);
+            // A cube is a landmark on the cycle its grasp begins.
+            let grasp_begins = (phase, status.phase) == (Phase::Reach, Phase::Final);
+            self.localizer
+                .locate(index, &task, &target, grasp_begins, stamp);
         }
         self.output(tool_to_target, status.changed)
-    }
-
-    /// Feeds perception's fix `target` (from the image stamped `stamp`) of task `index`,
-    /// `task`, to the odometry correction when the task's object is a landmark at this moment
-    /// (see the module doc): every new fix of a container or a button; a cube's, once, on the
-    /// cycle its grasp begins (`phases` before and after this cycle's step).
-    fn locate(
-        &mut self,
-        index: usize,
-        task: &MissionTask,
-        target: &TargetEstimate,
-        phases: (Phase, Phase),
-        stamp: u64,
-    ) {
-        let config = &self.config.mission;
-        let landmark = match task.kind {
-            TaskKind::Place | TaskKind::PressButton => {
-                self.last_fix_ns.is_none_or(|last| stamp > last)
-            }
-            TaskKind::Pick => {
-                phases == (Phase::Reach, Phase::Final)
-                    && target.velocity.norm() < config.landmark_max_speed
-            }
-        };
-        let residual = (self.correction.to_odometry(&task.position) - target.position)
-            .xy()
-            .norm();
-        if landmark && residual <= config.landmark_max_residual {
-            self.last_fix_ns = Some(self.last_fix_ns.map_or(stamp, |last| last.max(stamp)));
-            self.correction
-                .observe(index, &task.position, &target.position);
-        }
     }
 }
 
