@@ -162,6 +162,7 @@ impl ToJson for msgs::SafeStop {
             "seq": self.header.seq,
             "active": self.active,
             "reason": code_name::<msgs::SafeStopReason>(self.reason),
+            "fault_raises": self.fault_raises,
         })
     }
 }

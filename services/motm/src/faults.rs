@@ -49,13 +49,18 @@ pub struct FaultRecord {
     pub resumed_ms: Option<f64>,
 }
 
+/// The reason listed for a raise that began and ended between two samples of the safe-stop
+/// stream (counted by the watchdog's `fault_raises`).
+pub const UNSEEN_REASON: &str = "unseen (shorter than the polling period)";
+
 /// The watchdog's safe-stops over the run.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct SafeStopReport {
     /// Times safe-stop was raised for a fault (the start-up hold, reason `Starting`, until
-    /// every control-path process is heard from, is not a fault and is not counted). Exact
-    /// with `--fault` (the run then watches at 500 Hz); without, `motm run` watches at 20 Hz
-    /// and a raise shorter than that period may go unseen.
+    /// every control-path process is heard from, is not a fault and is not counted). Exact:
+    /// the watchdog counts its raises in every sample, so a raise shorter than `motm run`'s
+    /// polling period (20 Hz, 500 Hz with `--fault`) is counted too, with the reason
+    /// [`UNSEEN_REASON`].
     pub count: u32,
     /// Of `count`, the raises before the watchdog first cleared safe-stop (a fault while the
     /// stack was starting).
@@ -170,20 +175,66 @@ impl DriverTotals {
     }
 }
 
+/// The safe-stop stream as `motm run` reads it: the raises for a fault (seen, or counted by
+/// the watchdog between two samples) and the releases.
+#[derive(Debug, Default)]
+struct SafeStopLog {
+    /// Whether the watchdog has cleared safe-stop once (the stack is up).
+    stack_up: bool,
+    /// Whether safe-stop is raised for a fault (not the start-up hold).
+    active: bool,
+    /// The watchdog's count of fault raises in the last sample (`SafeStop::fault_raises`).
+    fault_raises: u64,
+    /// Monotonic stamps of every raise for a fault seen, ns.
+    raises_ns: Vec<u64>,
+    /// Monotonic stamps of every release after a raise for a fault, ns.
+    releases_ns: Vec<u64>,
+    report: SafeStopReport,
+}
+
+impl SafeStopLog {
+    /// Takes in one sample of the stream. The watchdog counts its raises: those that began and
+    /// ended between two samples read here are counted too, their reason unseen. A restarted
+    /// watchdog counts from zero again.
+    fn observe(&mut self, sample: &SafeStop) {
+        let stamp = sample.header.stamp_ns;
+        let reason = SafeStopReason::try_from(sample.reason);
+        let fault = sample.active == 1 && reason != Ok(SafeStopReason::Starting);
+        if sample.fault_raises < self.fault_raises {
+            self.fault_raises = 0;
+        }
+        let seen = u64::from(fault && !self.active);
+        let unseen = (sample.fault_raises - self.fault_raises).saturating_sub(seen);
+        self.fault_raises = sample.fault_raises;
+        for _ in 0..unseen {
+            self.count(UNSEEN_REASON.to_owned());
+        }
+        if fault && !self.active {
+            self.raises_ns.push(stamp);
+            self.count(reason.map_or_else(|code| format!("code {code}"), |r| format!("{r:?}")));
+        } else if !fault && self.active {
+            self.releases_ns.push(stamp);
+        }
+        if sample.active == 0 {
+            self.stack_up = true;
+        }
+        self.active = fault;
+    }
+
+    /// Counts a raise for `reason`.
+    fn count(&mut self, reason: String) {
+        self.report.count += 1;
+        self.report.at_startup += u32::from(!self.stack_up);
+        self.report.reasons.push(reason);
+    }
+}
+
 /// Carries out a fault schedule and watches the safe-stop stream.
 pub struct FaultRunner {
     tracked: Vec<Tracked>,
     injectors: Vec<Box<dyn Injector>>,
     safe_stop: Subscriber<SafeStop>,
-    /// Whether the watchdog has cleared safe-stop once (the stack is up).
-    stack_up: bool,
-    /// Whether safe-stop is raised for a fault (not the start-up hold).
-    active: bool,
-    /// Monotonic stamps of every raise for a fault, ns.
-    raises_ns: Vec<u64>,
-    /// Monotonic stamps of every release after a raise for a fault, ns.
-    releases_ns: Vec<u64>,
-    report: SafeStopReport,
+    safe_stops: SafeStopLog,
     /// Largest simulated time seen (sim-world's clock; kept when sim-world restarts).
     sim_time: f64,
     /// The mission events so far, from sim-world's truth.
@@ -235,11 +286,7 @@ impl FaultRunner {
                 .collect(),
             injectors,
             safe_stop: Subscriber::new(bus, services::SAFETY_SAFE_STOP, &Qos::default())?,
-            stack_up: false,
-            active: false,
-            raises_ns: Vec::new(),
-            releases_ns: Vec::new(),
-            report: SafeStopReport::default(),
+            safe_stops: SafeStopLog::default(),
             sim_time: 0.0,
             events: MissionEvents::default(),
         })
@@ -253,23 +300,7 @@ impl FaultRunner {
     /// Takes in the safe-stop samples that arrived.
     fn watch_safe_stop(&mut self) {
         while let Ok(Some(sample)) = self.safe_stop.receive() {
-            let stamp = sample.header.stamp_ns;
-            let reason = SafeStopReason::try_from(sample.reason);
-            let fault = sample.active == 1 && reason != Ok(SafeStopReason::Starting);
-            if fault && !self.active {
-                self.raises_ns.push(stamp);
-                self.report.count += 1;
-                self.report.at_startup += u32::from(!self.stack_up);
-                let reason =
-                    reason.map_or_else(|code| format!("code {code}"), |r| format!("{r:?}"));
-                self.report.reasons.push(reason);
-            } else if !fault && self.active {
-                self.releases_ns.push(stamp);
-            }
-            if sample.active == 0 {
-                self.stack_up = true;
-            }
-            self.active = fault;
+            self.safe_stops.observe(&sample);
         }
     }
 
@@ -386,6 +417,7 @@ impl FaultRunner {
                 .map_or(u64::MAX, |c| c.saturating_add(STOP_ATTRIBUTION_SETTLE_NS));
             if t.record.safe_stop_ms.is_none()
                 && let Some(&raise) = self
+                    .safe_stops
                     .raises_ns
                     .iter()
                     .find(|&&r| r >= injected && r <= until)
@@ -398,6 +430,7 @@ impl FaultRunner {
                 && t.record.resumed_ms.is_none()
                 && let Some(raised) = t.raised_ns
                 && let Some(&release) = self
+                    .safe_stops
                     .releases_ns
                     .iter()
                     .find(|&&r| r >= continued.max(raised))
@@ -422,10 +455,10 @@ impl FaultRunner {
             .filter(|t| t.fault.kind == FaultKind::Stop)
             .filter_map(|t| t.record.safe_stop_ms)
             .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
-        self.report.latency_ms = latency;
+        self.safe_stops.report.latency_ms = latency;
         (
             self.tracked.into_iter().map(|t| t.record).collect(),
-            self.report,
+            self.safe_stops.report,
         )
     }
 }
@@ -460,6 +493,56 @@ pub fn print_faults(faults: &[FaultRecord], safe_stops: &SafeStopReport) {
 mod tests {
     use super::*;
     use motm_core::fault_schedule::parse_schedule;
+    use motm_msgs::Message;
+
+    fn sample(stamp_ns: u64, reason: SafeStopReason, fault_raises: u64) -> SafeStop {
+        let mut m = SafeStop::zeroed();
+        m.header.stamp_ns = stamp_ns;
+        m.active = u32::from(reason != SafeStopReason::None);
+        m.reason = reason.into();
+        m.fault_raises = fault_raises;
+        m
+    }
+
+    #[test]
+    fn raises_between_two_samples_are_counted_with_an_unseen_reason() {
+        let mut log = SafeStopLog::default();
+        log.observe(&sample(1, SafeStopReason::Starting, 0));
+        log.observe(&sample(2, SafeStopReason::None, 0));
+        // Two raises came and went between samples; a third is seen raised.
+        log.observe(&sample(3, SafeStopReason::None, 2));
+        log.observe(&sample(4, SafeStopReason::StaleCommand, 3));
+        log.observe(&sample(5, SafeStopReason::StaleCommand, 3));
+        log.observe(&sample(6, SafeStopReason::None, 3));
+        assert_eq!(log.report.count, 3);
+        assert_eq!(log.report.at_startup, 0);
+        assert_eq!(
+            log.report.reasons,
+            [UNSEEN_REASON, UNSEEN_REASON, "StaleCommand"]
+        );
+        assert_eq!(
+            (log.raises_ns.as_slice(), log.releases_ns.as_slice()),
+            (&[4][..], &[6][..])
+        );
+        // A restarted watchdog counts from zero: its first raise is one more.
+        log.observe(&sample(7, SafeStopReason::Starting, 0));
+        log.observe(&sample(8, SafeStopReason::HeartbeatLost, 1));
+        assert_eq!(log.report.count, 4);
+        assert_eq!(
+            log.report.reasons.last().map(String::as_str),
+            Some("HeartbeatLost")
+        );
+    }
+
+    #[test]
+    fn a_raise_while_the_stack_starts_counts_at_start_up() {
+        let mut log = SafeStopLog::default();
+        log.observe(&sample(1, SafeStopReason::Starting, 0));
+        log.observe(&sample(2, SafeStopReason::HeartbeatLost, 1));
+        log.observe(&sample(3, SafeStopReason::None, 1));
+        log.observe(&sample(4, SafeStopReason::DeadlineMiss, 2));
+        assert_eq!((log.report.count, log.report.at_startup), (2, 1));
+    }
 
     #[test]
     fn injectable_topics_are_the_graphs_topics_of_a_corruptible_payload() {

@@ -783,6 +783,10 @@ pub struct SafeStop {
     pub active: u32,
     /// [`SafeStopReason`] code; `None` exactly when not active.
     pub reason: u32,
+    /// Raises for a fault since the watchdog started (the start-up hold, `Starting`, is not
+    /// one): a reader that samples the stream now and then still counts the short raises it
+    /// did not see.
+    pub fault_raises: u64,
 }
 
 message!(SafeStop, |m, c| {
@@ -922,7 +926,7 @@ code_enum!(
 );
 
 /// Largest number of objects a [`SimTruth`] reports.
-pub const MAX_SIM_OBJECTS: usize = 8;
+pub const MAX_SIM_OBJECTS: usize = 16;
 
 code_enum!(
     /// How a simulated trial stands (mirrors `motm_sim::Outcome` plus running and timeout).

@@ -561,11 +561,13 @@ fn safe_stop_reason_must_match_the_active_flag() {
         header: header(),
         active: 1,
         reason: SafeStopReason::DeadlineMiss.into(),
+        fault_raises: 1,
     };
     let cleared = SafeStop {
         header: header(),
         active: 0,
         reason: SafeStopReason::None.into(),
+        fault_raises: 1,
     };
     assert_eq!(check(&raised), Ok(()));
     assert_eq!(check(&cleared), Ok(()));

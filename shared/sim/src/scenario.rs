@@ -40,6 +40,7 @@ use motm_core::mission_file::{
     mission_tasks,
 };
 use motm_core::{BasePose, ModelError, ROBOT_NAMES};
+use motm_msgs::MAX_SIM_OBJECTS;
 use serde::Deserialize;
 
 /// How a cube moves on its platform. The robot is never told.
@@ -247,6 +248,15 @@ impl Scenario {
         check_base_speed(file, self.base_speed)?;
         if self.objects.is_empty() && self.buttons.is_empty() {
             return bad("objects", "a scenario needs at least one object or button");
+        }
+        if self.objects.len() > MAX_SIM_OBJECTS {
+            return bad(
+                "objects",
+                &format!(
+                    "at most {MAX_SIM_OBJECTS} objects (what the simulator's ground truth reports), got {}",
+                    self.objects.len()
+                ),
+            );
         }
         for (i, object) in self.objects.iter().enumerate() {
             object.validate(file, &format!("objects[{i}]"))?;

@@ -195,6 +195,15 @@ fn bad_values_are_named() {
     );
     let static_with_speed = VALID.replace("\"random\"", "\"static\"");
     assert_names(&error_of(&static_with_speed), "objects[0].speed");
+    let object = &VALID[VALID.find("[[objects]]").unwrap()..];
+    let most = format!("{VALID}{}", object.repeat(MAX_SIM_OBJECTS - 1));
+    assert!(Scenario::from_toml_str(Path::new("most.toml"), &most).is_ok());
+    let message = error_of(&format!("{most}{object}"));
+    assert_names(&message, "objects");
+    assert!(
+        message.contains(&format!("got {}", MAX_SIM_OBJECTS + 1)),
+        "{message}"
+    );
 }
 
 #[test]

@@ -71,6 +71,8 @@ pub struct WatchdogTask {
     last: Option<(SafeStopReason, String)>,
     /// What the last cycle changed, for the operator.
     notice: Option<String>,
+    /// Raises for a fault so far (not the start-up hold).
+    fault_raises: u64,
 }
 
 impl WatchdogTask {
@@ -112,6 +114,7 @@ impl WatchdogTask {
             names,
             last: None,
             notice: None,
+            fault_raises: 0,
         }
     }
 
@@ -192,6 +195,14 @@ impl Task for WatchdogTask {
             .as_ref()
             .map_or(SafeStopReason::None, |(reason, _)| *reason)
             .into();
+        let fault = |v: &Option<(SafeStopReason, String)>| {
+            v.as_ref()
+                .is_some_and(|(reason, _)| *reason != SafeStopReason::Starting)
+        };
+        if fault(&verdict) && !fault(&self.last) {
+            self.fault_raises += 1;
+        }
+        message.fault_raises = self.fault_raises;
         self.notice = self.change(&verdict);
         self.last = verdict;
         WatchdogOutputs {
@@ -333,6 +344,14 @@ mod tests {
                 "safe-stop raised: StaleCommand ({})",
                 topics::BASE_VELOCITY_COMMAND.name()
             ))
+        );
+        // The start-up hold was not a fault raise; this is the first, and it is counted once.
+        let mut inputs = all_well(t + MS);
+        inputs.base.clear();
+        let out = w.step(t + MS, &inputs);
+        assert_eq!(
+            out.safe_stop.map(|s| (s.active, s.fault_raises)),
+            Some((1, 1))
         );
     }
 
