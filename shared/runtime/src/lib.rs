@@ -500,7 +500,8 @@ pub const EXIT_FAILED: u8 = 1;
 
 /// The main of a service process: opens the bus as process `spec.name`, runs `task` with
 /// [`run_task`] until SIGTERM or SIGINT, printing the task's [`Task::notice`] after each
-/// cycle that has one, and prints the closing line (with `details` from the task); exits with [`EXIT_FAILED`] and a message naming the process when the bus fails.
+/// cycle that has one, and prints the closing line (with `details` from the task); exits with
+/// [`EXIT_FAILED`] and a message naming the process when the bus fails.
 pub fn serve<T: Task>(
     spec: &TaskSpec,
     task: &mut T,

@@ -171,6 +171,8 @@ impl Task for ReactiveTask {
         let Some(task) = self.tasks.get(index).copied().or(last) else {
             return BaselineOutputs::default();
         };
+        let target = correction.to_odometry(&task.position);
+        let offset = correction.offset();
         let view = MissionView {
             task_index: index,
             task_count: self.tasks.len(),
@@ -180,9 +182,9 @@ impl Task for ReactiveTask {
             } else {
                 Phase::Complete
             },
-            target: correction.to_odometry(&task.position),
-            next_waypoint: correction.to_odometry(&task.position),
-            odometry_offset: correction.offset(),
+            target,
+            next_waypoint: target,
+            odometry_offset: offset,
             odometry_calibrated: correction.calibrated(),
         };
         let perceived = inputs.target.as_ref().map(convert::perceived);
@@ -194,7 +196,7 @@ impl Task for ReactiveTask {
             arm_q: convert::arm_q(joints),
             gripper_opening: gripper.width,
             target: selected.target,
-            odometry_offset: correction.offset(),
+            odometry_offset: offset,
         });
         if let Some(stamp) = selected.image_stamp_ns {
             // A cube is a landmark as the fingers start closing on it.

@@ -32,24 +32,27 @@ ports! {
     }
 }
 
+/// The heartbeat topics of [`WatchdogInputs`], in the order of [`WatchdogInputs::heartbeats`].
+pub const HEARTBEAT_TOPICS: [motm_msgs::Topic<Heartbeat>; 6] = [
+    topics::HEARTBEAT_PANDA_DRIVER,
+    topics::HEARTBEAT_LD60_DRIVER,
+    topics::HEARTBEAT_REACHER,
+    topics::HEARTBEAT_FINAL_PHASE,
+    topics::HEARTBEAT_QP_RESOLVER,
+    topics::HEARTBEAT_QP_RESOLVER_STANDBY,
+];
+
 impl WatchdogInputs {
-    /// The heartbeats of this cycle, by process name, in the order of the row's inputs.
-    pub fn heartbeats(&self) -> [(&'static str, &[Heartbeat]); 6] {
-        let name = |topic: motm_msgs::Topic<Heartbeat>| {
-            motm_graph::heartbeat_of(topic.name()).map_or("", |t| t.name)
-        };
+    /// The heartbeats of this cycle, one slice per topic of [`HEARTBEAT_TOPICS`].
+    pub fn heartbeats(&self) -> [&[Heartbeat]; 6] {
         [
-            (name(topics::HEARTBEAT_PANDA_DRIVER), &self.panda_driver),
-            (name(topics::HEARTBEAT_LD60_DRIVER), &self.ld60_driver),
-            (name(topics::HEARTBEAT_REACHER), &self.reacher),
-            (name(topics::HEARTBEAT_FINAL_PHASE), &self.final_phase),
-            (name(topics::HEARTBEAT_QP_RESOLVER), &self.qp_resolver),
-            (
-                name(topics::HEARTBEAT_QP_RESOLVER_STANDBY),
-                &self.qp_resolver_standby,
-            ),
+            &self.panda_driver,
+            &self.ld60_driver,
+            &self.reacher,
+            &self.final_phase,
+            &self.qp_resolver,
+            &self.qp_resolver_standby,
         ]
-        .map(|(name, beats)| (name, beats.as_slice()))
     }
 }
 
@@ -67,6 +70,8 @@ pub struct WatchdogTask {
     watchdog: Watchdog,
     /// Source names: the watched processes, then the arm and base command topics.
     names: Vec<String>,
+    /// The source index of each topic of [`HEARTBEAT_TOPICS`] (`None`: not watched).
+    slots: [Option<usize>; 6],
     /// The verdict of the last cycle: the reason and the source at fault.
     last: Option<(SafeStopReason, String)>,
     /// What the last cycle changed, for the operator.
@@ -107,11 +112,16 @@ impl WatchdogTask {
                 watchdog.redundant(&group);
             }
         }
+        let slots = HEARTBEAT_TOPICS.map(|topic| {
+            let process = motm_graph::heartbeat_of(topic.name())?;
+            names.iter().position(|n| n == process.name)
+        });
         names.push(topics::ARM_VELOCITY_COMMAND.name().to_owned());
         names.push(topics::BASE_VELOCITY_COMMAND.name().to_owned());
         Self {
             watchdog,
             names,
+            slots,
             last: None,
             notice: None,
             fault_raises: 0,
@@ -165,8 +175,8 @@ impl Task for WatchdogTask {
 
     fn step(&mut self, now_ns: u64, inputs: &WatchdogInputs) -> WatchdogOutputs {
         let watched = self.names.len() - 2;
-        for (name, beats) in inputs.heartbeats() {
-            let Some(index) = self.names[..watched].iter().position(|n| n == name) else {
+        for (slot, beats) in self.slots.into_iter().zip(inputs.heartbeats()) {
+            let Some(index) = slot else {
                 continue;
             };
             for b in beats {
@@ -218,6 +228,7 @@ impl Task for WatchdogTask {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use motm_graph::PortSet;
     use motm_msgs::Header;
 
     const MS: u64 = 1_000_000;
@@ -267,10 +278,14 @@ mod tests {
 
     #[test]
     fn only_the_stacks_control_path_processes_are_watched() {
-        let names: Vec<&str> = WatchdogInputs::default()
-            .heartbeats()
+        // The heartbeat slices come in the order of the heartbeat topics of the inputs.
+        let inputs: Vec<&str> = WatchdogInputs::TOPICS[2..].iter().map(|t| t.name).collect();
+        let topics: Vec<&str> = HEARTBEAT_TOPICS.iter().map(|t| t.name()).collect();
+        assert_eq!(inputs, topics);
+        let names: Vec<&str> = HEARTBEAT_TOPICS
             .iter()
-            .map(|(name, _)| *name)
+            .filter_map(|t| motm_graph::heartbeat_of(t.name()))
+            .map(|t| t.name)
             .collect();
         assert!(
             names
