@@ -43,7 +43,8 @@ pub struct FaultRecord {
     pub restart_ms: Option<f64>,
     /// Kill: from the kill to the first heartbeat of the new instance, ms.
     pub first_heartbeat_ms: Option<f64>,
-    /// From the fault to the watchdog's first safe-stop sample after it, ms.
+    /// From the fault to the watchdog's first safe-stop sample after it, ms (a stop: the first
+    /// within 100 ms of its SIGSTOP or of its SIGCONT).
     pub safe_stop_ms: Option<f64>,
     /// Stop: from SIGCONT to safe-stop released, ms.
     pub resumed_ms: Option<f64>,
@@ -103,11 +104,32 @@ pub fn check_targets(faults: &[Fault], processes: &[String]) -> Result<(), Strin
     Ok(())
 }
 
-/// How long after a stopped process's SIGCONT a safe-stop raise is still the stop's, ns. The
-/// process resumes at once and its streams are fresh again within a few control cycles; a raise
-/// seconds later has another cause (a stack on a shared machine also raises, rarely, in a run
-/// without any fault: a 20-40 ms scheduling stall of the control path is a stale command).
-const STOP_ATTRIBUTION_SETTLE_NS: u64 = 1_000_000_000;
+/// How long after a stopped process's SIGSTOP, and after its SIGCONT, a safe-stop raise is the
+/// stop's, ns. A hang can only raise by silencing a stream, and the watchdog sees a silent
+/// stream after `stale_cycles` (3) periods: a hang without a standby raises 15-20 ms after the
+/// SIGSTOP, and a resumed process's streams are fresh again within a few cycles of the
+/// SIGCONT. Between the two windows a hot standby carries the stopped process's streams alone,
+/// and a raise there is a stall of the standby itself; a stack on a shared 2-core machine also
+/// raises, rarely, in a run without any fault (a 20-40 ms scheduling stall of the control path
+/// is a stale command). Such raises are counted in the report's `safe_stops`, not given to the
+/// stop. 100 ms is 20 control periods at 200 Hz.
+const STOP_ATTRIBUTION_WINDOW_NS: u64 = 100_000_000;
+
+/// Whether a safe-stop raised at `raise_ns` is the fault's, injected at `injected_ns` (a
+/// stop: continued at `continued_ns`). A kill's or a NaN's is the first raise after it; a
+/// stop's is within [`STOP_ATTRIBUTION_WINDOW_NS`] of its SIGSTOP or of its SIGCONT.
+fn raise_is_the_faults(
+    kind: FaultKind,
+    injected_ns: u64,
+    continued_ns: Option<u64>,
+    raise_ns: u64,
+) -> bool {
+    let soon_after = |from: u64| raise_ns >= from && raise_ns - from <= STOP_ATTRIBUTION_WINDOW_NS;
+    raise_ns >= injected_ns
+        && (kind != FaultKind::Stop
+            || soon_after(injected_ns)
+            || continued_ns.is_some_and(soon_after))
+}
 
 /// A fault under way or done.
 struct Tracked {
@@ -404,23 +426,20 @@ impl FaultRunner {
     }
 
     /// Links each injected fault to the first safe-stop raise after it, and each stop to the
-    /// first release after its SIGCONT. A stop's raise counts only until
-    /// [`STOP_ATTRIBUTION_SETTLE_NS`] after its SIGCONT: a raise later than that, with the
-    /// process running again, is not the stop's (the report's `safe_stops` still counts it).
+    /// first release after its SIGCONT. A stop's raise counts only within
+    /// [`STOP_ATTRIBUTION_WINDOW_NS`] of its SIGSTOP or of its SIGCONT: the only moments a hang
+    /// can silence a stream (the report's `safe_stops` still counts every raise).
     fn attribute_safe_stops(&mut self) {
         for t in &mut self.tracked {
             let Some(injected) = t.injected_ns else {
                 continue;
             };
-            let until = t
-                .continued_ns
-                .map_or(u64::MAX, |c| c.saturating_add(STOP_ATTRIBUTION_SETTLE_NS));
             if t.record.safe_stop_ms.is_none()
                 && let Some(&raise) = self
                     .safe_stops
                     .raises_ns
                     .iter()
-                    .find(|&&r| r >= injected && r <= until)
+                    .find(|&&r| raise_is_the_faults(t.fault.kind, injected, t.continued_ns, r))
             {
                 t.raised_ns = Some(raise);
                 t.record.safe_stop_ms = Some(ms(injected, raise));
@@ -502,6 +521,43 @@ mod tests {
         m.reason = reason.into();
         m.fault_raises = fault_raises;
         m
+    }
+
+    #[test]
+    fn a_stop_owns_only_the_raises_soon_after_its_sigstop_or_its_sigcont() {
+        const MS: u64 = 1_000_000;
+        let stop = |raise| raise_is_the_faults(FaultKind::Stop, 1000 * MS, Some(1300 * MS), raise);
+        assert!(!stop(999 * MS), "before the SIGSTOP");
+        assert!(
+            stop(1015 * MS) && stop(1100 * MS),
+            "the hang's stale stream"
+        );
+        assert!(
+            !stop(1268 * MS),
+            "mid-hang, with a standby carrying the streams"
+        );
+        assert!(stop(1305 * MS), "just after the SIGCONT");
+        assert!(!stop(2000 * MS), "seconds later");
+        // Still stopped: nothing after the first window is the stop's until the SIGCONT.
+        assert!(!raise_is_the_faults(
+            FaultKind::Stop,
+            1000 * MS,
+            None,
+            1200 * MS
+        ));
+        // A kill owns the first raise after it, however late.
+        assert!(raise_is_the_faults(
+            FaultKind::Kill,
+            1000 * MS,
+            None,
+            5000 * MS
+        ));
+        assert!(!raise_is_the_faults(
+            FaultKind::Kill,
+            1000 * MS,
+            None,
+            999 * MS
+        ));
     }
 
     #[test]
