@@ -203,8 +203,20 @@ impl Task for ReactiveTask {
             let grasp_begins = task.kind == TaskKind::Pick
                 && before == ReactiveStage::Descend
                 && out.stage == ReactiveStage::Gripper;
-            self.localizer
-                .locate(index, &task, &selected.target, grasp_begins, stamp);
+            // The tool's distance to the object (the baseline aims at the object itself).
+            let tool = self
+                .baseline
+                .robot()
+                .tool_pose(&base, convert::arm_q(joints));
+            let tool_range = (tool.translation.vector - selected.target.position).norm();
+            self.localizer.locate(
+                index,
+                &task,
+                &selected.target,
+                tool_range,
+                grasp_begins,
+                stamp,
+            );
         }
         commands(now_ns, mission, &out.arm_qd, &out.base, out.gripper)
     }

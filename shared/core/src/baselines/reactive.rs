@@ -207,6 +207,11 @@ impl ReactiveBaseline {
         }
     }
 
+    /// The robot it commands.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
     /// The stage within the current task.
     pub fn stage(&self) -> ReactiveStage {
         self.stage

@@ -189,6 +189,8 @@ pub struct Localizer {
     max_speed: f64,
     /// A fix farther than this from the known position's prediction is not taken, m.
     max_residual: f64,
+    /// A fix taken with the tool farther than this from the task's aim is not taken, m.
+    max_range: f64,
     /// The newest image stamp taken as a landmark fix.
     last_fix_ns: Option<u64>,
 }
@@ -203,6 +205,7 @@ impl Localizer {
             ),
             max_speed: config.landmark_max_speed,
             max_residual: config.landmark_max_residual,
+            max_range: config.landmark_max_range,
             last_fix_ns: None,
         }
     }
@@ -220,22 +223,27 @@ impl Localizer {
     /// Feeds perception's fix `seen` (from the image stamped `stamp`) of task `index`, `task`,
     /// to the correction when the task's object is a landmark at this moment: every new fix of
     /// a container or a button; a cube's once, on the cycle its grasp begins (`grasp_begins`),
-    /// when it is seen standing still. A fix farther than `landmark_max_residual` from where
-    /// the correction puts the known position is another object, and is not taken.
+    /// when it is seen standing still. Only fixes taken with the tool within
+    /// `landmark_max_range` of the task's aim (`tool_range`, m) count: from farther, a
+    /// container is seen obliquely and its walls bias the fix. A fix farther than
+    /// `landmark_max_residual` from where the correction puts the known position is another
+    /// object, and is not taken.
     pub fn locate(
         &mut self,
         index: usize,
         task: &MissionTask,
         seen: &TargetEstimate,
+        tool_range: f64,
         grasp_begins: bool,
         stamp: u64,
     ) {
-        let landmark = match task.kind {
-            TaskKind::Place | TaskKind::PressButton => {
-                self.last_fix_ns.is_none_or(|last| stamp > last)
-            }
-            TaskKind::Pick => grasp_begins && seen.velocity.norm() < self.max_speed,
-        };
+        let landmark = tool_range <= self.max_range
+            && match task.kind {
+                TaskKind::Place | TaskKind::PressButton => {
+                    self.last_fix_ns.is_none_or(|last| stamp > last)
+                }
+                TaskKind::Pick => grasp_begins && seen.velocity.norm() < self.max_speed,
+            };
         let residual = (self.correction.to_odometry(&task.position) - seen.position)
             .xy()
             .norm();
@@ -375,5 +383,50 @@ mod tests {
         assert!((c.offset()[0] - 0.1).abs() < 1e-12);
         c.observe(0, &p, &Vector3::new(f64::NAN, 0.0, 0.0));
         assert!((c.offset()[0] - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_container_is_a_landmark_only_seen_from_within_range() {
+        let config = MissionConfig::default();
+        let mut l = Localizer::new(&config);
+        let container = MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: Vector3::new(3.0, 0.0, 0.35),
+        };
+        let seen = TargetEstimate::fixed(Vector3::new(3.1, 0.05, 0.35));
+        // Seen from afar (obliquely, biased by its walls): not taken.
+        l.locate(
+            0,
+            &container,
+            &seen,
+            config.landmark_max_range + 0.5,
+            false,
+            1,
+        );
+        assert_eq!(l.correction().offset(), [0.0, 0.0, 0.0]);
+        // From within range: taken.
+        l.locate(
+            0,
+            &container,
+            &seen,
+            config.landmark_max_range - 0.05,
+            false,
+            2,
+        );
+        let offset = l.correction().offset();
+        assert!((offset[0] - 0.1).abs() < 1e-12 && (offset[1] - 0.05).abs() < 1e-12);
+        // A cube only as its grasp begins, and only seen still.
+        let cube = MissionTask {
+            kind: TaskKind::Pick,
+            item: 1,
+            position: Vector3::new(0.0, 0.4, 0.45),
+        };
+        let mut cube_seen = TargetEstimate::fixed(Vector3::new(0.1, 0.45, 0.45));
+        l.locate(1, &cube, &cube_seen, 0.05, false, 3);
+        assert_eq!(l.correction().offset(), offset);
+        cube_seen.velocity.x = 0.05;
+        l.locate(1, &cube, &cube_seen, 0.05, true, 4);
+        assert_eq!(l.correction().offset(), offset);
     }
 }

@@ -188,7 +188,7 @@ impl MissionTracker {
             // A cube is a landmark on the cycle its grasp begins.
             let grasp_begins = (phase, status.phase) == (Phase::Reach, Phase::Final);
             self.localizer
-                .locate(index, &task, &target, grasp_begins, stamp);
+                .locate(index, &task, &target, tool_to_target, grasp_begins, stamp);
         }
         self.output(tool_to_target, status.changed)
     }

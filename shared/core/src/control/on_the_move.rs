@@ -293,6 +293,10 @@ mod config_file_tests {
                 "[mission]\nlandmark_fix_weight = 2.0\n",
                 "mission.landmark_fix_weight",
             ),
+            (
+                "[mission]\nlandmark_max_range = 0.0\n",
+                "mission.landmark_max_range",
+            ),
             ("[perception]\nmin_red = 300\n", "min_red"),
             ("[perception]\nmin_pixels = 0\n", "perception.min_pixels"),
             ("[perception]\nmax_range = -1.0\n", "perception.max_range"),
