@@ -204,16 +204,11 @@ impl Task for ReactiveTask {
                 && before == ReactiveStage::Descend
                 && out.stage == ReactiveStage::Gripper;
             // The tool's distance to the object (the baseline aims at the object itself).
-            let tool = self
-                .baseline
-                .robot()
-                .tool_pose(&base, convert::arm_q(joints));
-            let tool_range = (tool.translation.vector - selected.target.position).norm();
             self.localizer.locate(
                 index,
                 &task,
                 &selected.target,
-                tool_range,
+                out.tool_to_target,
                 grasp_begins,
                 stamp,
             );

@@ -167,6 +167,8 @@ pub struct ReactiveOutput {
     pub qp_status: ResolveStatus,
     /// The holistic controller's e_t, m.
     pub position_error: f64,
+    /// Distance from the tool to the input's target as the cycle began, m.
+    pub tool_to_target: f64,
 }
 
 /// The reactive (holistic, stop-and-grasp) baseline over a list of tasks.
@@ -205,11 +207,6 @@ impl ReactiveBaseline {
             anchor: None,
             gripper: GripperCommand::Open,
         }
-    }
-
-    /// The robot it commands.
-    pub fn robot(&self) -> &Robot {
-        &self.robot
     }
 
     /// The stage within the current task.
@@ -335,10 +332,11 @@ impl ReactiveBaseline {
 
     /// One control cycle.
     pub fn step(&mut self, input: &ReactiveInput<'_>) -> ReactiveOutput {
-        let Some(task) = self.current_task().copied() else {
-            return self.idle();
-        };
         let tool = self.robot.tool_pose(&input.base, input.arm_q);
+        let tool_to_target = (tool.translation.vector - input.target.position).norm();
+        let Some(task) = self.current_task().copied() else {
+            return self.idle(tool_to_target);
+        };
         let goal = self.goal(
             task.kind,
             &input.target,
@@ -424,11 +422,12 @@ impl ReactiveBaseline {
             task_index: self.task,
             qp_status: out.status,
             position_error: out.position_error,
+            tool_to_target,
         }
     }
 
     /// The command once every task is done: stand still, gripper as it was.
-    fn idle(&self) -> ReactiveOutput {
+    fn idle(&self, tool_to_target: f64) -> ReactiveOutput {
         ReactiveOutput {
             base: BaseVelocity::default(),
             arm_qd: vec![0.0; self.robot.arm_dof()],
@@ -437,6 +436,7 @@ impl ReactiveBaseline {
             task_index: self.task,
             qp_status: ResolveStatus::Solved,
             position_error: 0.0,
+            tool_to_target,
         }
     }
 }
