@@ -31,7 +31,7 @@
 //!   the platform in the way for good.
 //! - **Closing** ends when the fingers reach `closed_opening` or after `closing_timeout`.
 
-use nalgebra::{Isometry3, Translation3, Vector3};
+use nalgebra::{Isometry3, Translation3, Vector2, Vector3};
 use serde::Deserialize;
 
 use crate::holistic::{HolisticConfig, HolisticController, HolisticInput};
@@ -84,6 +84,19 @@ pub struct ReactiveConfig {
     /// 0.68 × 0.47 m footprint: 0.41 m half-diagonal) plus a platform's half-diagonal (0.21 m
     /// for the simulator's 0.3 m platform) plus 13 cm for odometry drift.
     pub platform_clearance: f64,
+    /// Radius of a pick platform's footprint, m: the simulator's 0.3 m square platform's
+    /// half-diagonal. An earlier platform beside the current target (one the base does not
+    /// have to pass, such as the next one along a row) stops the base only when its footprint,
+    /// grown by `footprint_margin`, would touch the base's: the leaving clearance there would
+    /// hold the base out of the arm's reach of a target whose neighbours it approaches at a
+    /// slant.
+    pub platform_radius: f64,
+    /// Margin kept between the base's footprint and a platform beside the target, m.
+    pub footprint_margin: f64,
+    /// Further margin ahead of the base for a platform beside the target, m: the base's
+    /// response lags its command (it was measured to stop 5 cm past the speed cap's point from
+    /// 0.3 m/s), and odometry drifts.
+    pub stopping_margin: f64,
     /// Turn rate while an earlier platform blocks the way, rad/s (a third of Frankie's 1.5 rad/s
     /// limit: a quarter turn takes about 3 s).
     pub escape_turn_rate: f64,
@@ -110,6 +123,9 @@ impl Default for ReactiveConfig {
             press_depth: 0.01,
             base_standoff: 0.7,
             platform_clearance: 0.75,
+            platform_radius: 0.21,
+            footprint_margin: 0.05,
+            stopping_margin: 0.07,
             escape_turn_rate: 0.5,
             base_corridor: 0.55,
             max_base_speed: 0.3,
@@ -185,6 +201,10 @@ pub struct ReactiveBaseline {
     gripper: GripperCommand,
     /// The base's forward acceleration limit, m/s² (from the model).
     base_deceleration: f64,
+    /// How far ahead (along the heading) and beside the heading line (m) a platform beside
+    /// the target stops the base: the base's half-length and half-width, each plus
+    /// `platform_radius` and `footprint_margin`, and the length plus `stopping_margin`.
+    beside_target_standoff: [f64; 2],
 }
 
 impl ReactiveBaseline {
@@ -195,7 +215,13 @@ impl ReactiveBaseline {
         } else {
             ReactiveStage::Approach
         };
+        let grown = config.platform_radius + config.footprint_margin;
+        let [length, width] = robot.config.footprint;
         Self {
+            beside_target_standoff: [
+                0.5 * length + grown + config.stopping_margin,
+                0.5 * width + grown,
+            ],
             base_deceleration: robot.limits()[1].acceleration,
             controller: HolisticController::new(robot.clone(), config.holistic.clone()),
             config,
@@ -268,7 +294,8 @@ impl ReactiveBaseline {
     /// ahead in its path (within `base_corridor` of its heading line): `base_standoff` short of
     /// the current target where it is seen (`target`: the known position can be metres of drift
     /// or a neighbour's spacing off, and a stand-off from it can hold the base out of the arm's
-    /// reach of the cube for good), `platform_clearance` short of earlier ones.
+    /// reach of the cube for good), `platform_clearance` short of earlier ones it has to pass and
+    /// clear of those beside the target (`platform_radius`).
     fn clamp_forward_speed(
         &self,
         base: &BasePose,
@@ -276,15 +303,16 @@ impl ReactiveBaseline {
         offset: &[f64; 3],
         v: f64,
     ) -> f64 {
-        let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
-        let from = nalgebra::Vector2::new(base.x, base.y);
+        let heading = Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
+        let from = Vector2::new(base.x, base.y);
         let last = (self.task + 1).min(self.tasks.len());
         let room = self.tasks[..last]
             .iter()
             .enumerate()
             .filter(|(_, t)| t.kind == TaskKind::Pick)
             .filter_map(|(index, t)| {
-                let position = if index == self.task {
+                let current = index == self.task;
+                let position = if current {
                     *target
                 } else {
                     world_to_odometry(offset, &t.position)
@@ -292,25 +320,36 @@ impl ReactiveBaseline {
                 let offset = position.xy() - from;
                 let along = offset.dot(&heading);
                 let beside = (offset - heading * along).norm();
-                let keep = if index == self.task {
-                    self.config.base_standoff
+                let (keep, corridor) = if current {
+                    (self.config.base_standoff, self.config.base_corridor)
+                } else if self.passes(&offset, &(target.xy() - from)) {
+                    (self.config.platform_clearance, self.config.base_corridor)
                 } else {
-                    self.config.platform_clearance
+                    self.beside_target_standoff.into()
                 };
-                (along > 0.0 && beside < self.config.base_corridor)
-                    .then_some((along - keep).max(0.0))
+                (along > 0.0 && beside < corridor).then_some((along - keep).max(0.0))
             })
             .fold(f64::INFINITY, f64::min);
         let stoppable = (2.0 * self.base_deceleration * room).sqrt();
         v.clamp(-stoppable, stoppable)
     }
 
+    /// Whether the base, to come within `base_standoff` of a goal at `to_goal` (from the base),
+    /// has to pass a platform at `to_platform`. A platform beside the goal, such as the next
+    /// one along a row, is not passed: the base keeps only clear of it
+    /// (`platform_radius`) rather than the leaving clearance, and does not turn away from it.
+    fn passes(&self, to_platform: &Vector2<f64>, to_goal: &Vector2<f64>) -> bool {
+        to_goal.norm() > to_platform.norm() + self.config.base_standoff
+    }
+
     /// The turn that takes the base out of an earlier pick platform's way, when one blocks it:
-    /// the platform lies in the strip ahead within `platform_clearance`, and the turn is toward
-    /// the side of `goal` (world point) relative to the platform.
+    /// the platform lies in the strip ahead within `platform_clearance`, the base would have to
+    /// pass it to come within `base_standoff` of `goal` (a platform beside the goal, such as
+    /// the next one along a row, is not in the way), and the turn is toward the side of `goal`
+    /// (world point) relative to the platform.
     fn escape_turn(&self, base: &BasePose, goal: &Vector3<f64>, offset: &[f64; 3]) -> Option<f64> {
-        let heading = nalgebra::Vector2::new(base.yaw.cos(), base.yaw.sin());
-        let from = nalgebra::Vector2::new(base.x, base.y);
+        let heading = Vector2::new(base.yaw.cos(), base.yaw.sin());
+        let from = Vector2::new(base.x, base.y);
         let to_goal = goal.xy() - from;
         self.tasks[..self.task.min(self.tasks.len())]
             .iter()
@@ -322,6 +361,7 @@ impl ReactiveBaseline {
                 along > 0.0
                     && along <= self.config.platform_clearance
                     && beside < self.config.base_corridor
+                    && self.passes(offset, &to_goal)
             })
             .map(|offset| {
                 let side = offset.perp(&to_goal);
@@ -366,7 +406,14 @@ impl ReactiveBaseline {
         };
         // The stand-off cuts the forward speed alone, so the base can still turn away.
         let offset = &input.odometry_offset;
-        let base = match self.escape_turn(&input.base, &goal, offset) {
+        // The escape turn is for a base that wants to drive on toward the target: never while
+        // the fingers are at the cube (descending, closing, lifting), where turning the base
+        // sweeps the tool across the platform.
+        let escaping = self.stage == ReactiveStage::Approach && out.base.v > 0.0;
+        let escape = escaping
+            .then(|| self.escape_turn(&input.base, &goal, offset))
+            .flatten();
+        let base = match escape {
             Some(omega) => BaseVelocity { v: 0.0, omega },
             None => BaseVelocity {
                 v: self.clamp_forward_speed(
@@ -579,5 +626,39 @@ mod tests {
         };
         let out = step_at(&mut baseline, clear, Vector3::new(3.2, 2.4, 0.35));
         assert!(out.base.v > 0.0);
+    }
+
+    #[test]
+    fn a_platform_beside_the_next_cube_of_a_row_neither_turns_nor_holds_back_the_base() {
+        // Two cubes of a slanted row; the first is picked and placed, the base drives at the
+        // second with the first's platform 0.70 m ahead, inside the leaving clearance.
+        let pick = |x: f64, y: f64| MissionTask {
+            kind: TaskKind::Pick,
+            item: 0,
+            position: Vector3::new(x, y, 0.45),
+        };
+        let place = MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: Vector3::new(3.2, 2.4, 0.35),
+        };
+        let tasks = vec![pick(1.95, 0.12), place, pick(2.0, 0.0)];
+        let mut baseline = ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks);
+        baseline.task = 2;
+        let base = BasePose {
+            x: 1.25,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let cube = Vector3::new(2.0, 0.0, 0.45);
+        assert!(baseline.config.platform_clearance > 0.7);
+        assert_eq!(baseline.escape_turn(&base, &cube, &[0.0; 3]), None);
+        let v = baseline.clamp_forward_speed(&base, &cube, &[0.0; 3], 0.3);
+        assert!(v > 0.05, "v = {v}");
+        // Inside its footprint clearance (0.67 m ahead for Frankie) the platform does stop the
+        // base, 1 cm short of the stand-off from the cube.
+        let closer = BasePose { x: 1.29, ..base };
+        let v = baseline.clamp_forward_speed(&closer, &cube, &[0.0; 3], 0.3);
+        assert_eq!(v, 0.0);
     }
 }

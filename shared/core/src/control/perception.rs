@@ -543,9 +543,20 @@ impl Perception {
                     .zip(distance(*fix))
                     .is_some_and(|(n, d)| n < 2.0 * d)
         };
+        // Before the first fix with an untrusted layout, while the hint itself is out of the
+        // view: a blob nearer a known neighbour than the hint is taken for that neighbour. The
+        // view then holds only part of the row, which explains a shift of whole spacings as
+        // well as none; once the hint comes into view, the constellation decides.
+        let hint_unseen = hint.is_some_and(|h| !input.layout_trusted && !self.in_view(&h, input));
+        let neighbour_nearer = |fix: &Vector3<f64>| {
+            let d = input
+                .target_hint
+                .map_or(f64::INFINITY, |h| (fix - h).xy().norm());
+            input.neighbours.iter().any(|n| (fix - n).xy().norm() < d)
+        };
         let mut best: Option<(f64, f64, usize, Vector3<f64>)> = None;
         for &(pixels, fix) in &fixes {
-            if merged(pixels, &fix) {
+            if merged(pixels, &fix) || (hint_unseen && neighbour_nearer(&fix)) {
                 continue;
             }
             let (explained, score) = match distance(fix) {
@@ -657,6 +668,13 @@ impl Perception {
             blob.sum_u += (run.start as u64 + run.end as u64 - 1) * len / 2;
             blob.sum_v += run.row as u64 * len;
         }
+    }
+
+    /// Whether the world point `point` images inside the camera's view at `input`'s tool pose.
+    fn in_view(&self, point: &Vector3<f64>, input: &PerceptionInput) -> bool {
+        let world_from_camera = input.tool_pose * self.calibration.tool_from_camera;
+        let local = world_from_camera.inverse_transform_point(&(*point).into());
+        self.calibration.model.project(&local.coords).is_some()
     }
 
     /// Intersects the calibrated ray of `pixel` with the plane `z = height` (world).
@@ -879,6 +897,39 @@ mod tests {
         first.layout_trusted = true;
         let trusted = Perception::new(config, calibration()).step(&first);
         assert!(!trusted.valid, "{trusted:?}");
+    }
+
+    #[test]
+    fn with_the_hint_out_of_view_a_blob_nearer_a_neighbour_than_the_hint_is_that_neighbour() {
+        // As above with an untrusted layout, but the hint lies beyond the image's edge: the view
+        // holds only part of the row, which explains a shift of whole spacings as well as none,
+        // so no blob nearer a known neighbour than the hint is taken for the target.
+        let centres = [(160, 119), (220, 119)];
+        let image = image_with_squares(&centres, 3);
+        let fix_of = |c: (usize, usize)| fix_of_square(c, 3);
+        let (a, b) = (fix_of(centres[0]), fix_of(centres[1]));
+        let step = b - a;
+        let config = PerceptionConfig {
+            max_prior_distance: 10.0,
+            constellation_tolerance: step.norm() / 3.0,
+            ..PerceptionConfig::default()
+        };
+        let neighbours = [a, b];
+        let mut first = input(&image, 0.0);
+        first.target_hint = Some(a - 6.0 * step);
+        first.neighbours = &neighbours;
+        let mut perception = Perception::new(config, calibration());
+        assert!(!perception.in_view(&(a - 6.0 * step), &first));
+        assert!(perception.in_view(&a, &first));
+        let out_of_view = perception.step(&first);
+        assert!(!out_of_view.valid, "{out_of_view:?}");
+        // Without known neighbours, the blob nearest the hint is the first fix.
+        first.neighbours = &[];
+        let alone = Perception::new(config, calibration()).step(&first);
+        assert!(
+            alone.valid && (alone.position - a).norm() < 1e-9,
+            "{alone:?}"
+        );
     }
 
     #[test]
