@@ -900,39 +900,6 @@ mod tests {
     }
 
     #[test]
-    fn with_the_hint_out_of_view_a_blob_nearer_a_neighbour_than_the_hint_is_that_neighbour() {
-        // As above with an untrusted layout, but the hint lies beyond the image's edge: the view
-        // holds only part of the row, which explains a shift of whole spacings as well as none,
-        // so no blob nearer a known neighbour than the hint is taken for the target.
-        let centres = [(160, 119), (220, 119)];
-        let image = image_with_squares(&centres, 3);
-        let fix_of = |c: (usize, usize)| fix_of_square(c, 3);
-        let (a, b) = (fix_of(centres[0]), fix_of(centres[1]));
-        let step = b - a;
-        let config = PerceptionConfig {
-            max_prior_distance: 10.0,
-            constellation_tolerance: step.norm() / 3.0,
-            ..PerceptionConfig::default()
-        };
-        let neighbours = [a, b];
-        let mut first = input(&image, 0.0);
-        first.target_hint = Some(a - 6.0 * step);
-        first.neighbours = &neighbours;
-        let mut perception = Perception::new(config, calibration());
-        assert!(!perception.in_view(&(a - 6.0 * step), &first));
-        assert!(perception.in_view(&a, &first));
-        let out_of_view = perception.step(&first);
-        assert!(!out_of_view.valid, "{out_of_view:?}");
-        // Without known neighbours, the blob nearest the hint is the first fix.
-        first.neighbours = &[];
-        let alone = Perception::new(config, calibration()).step(&first);
-        assert!(
-            alone.valid && (alone.position - a).norm() < 1e-9,
-            "{alone:?}"
-        );
-    }
-
-    #[test]
     fn a_tracked_target_is_not_taken_for_its_merge_with_a_neighbour() {
         let (target, neighbour) = ((140, 119), (200, 119));
         let fix_of = |c: (usize, usize)| fix_of_square(c, 2);
