@@ -3,7 +3,8 @@
 //! with the stack's side played over iceoryx2 by this test: velocity commands go in, the
 //! robot follows them within libfranka's limits, joint, gripper and status messages come out;
 //! stale commands ramp down and finish the motion; dropped commands raise the reflex, which
-//! the driver reports as a safe stop. Waits are bounded (generously: the machine is shared),
+//! the driver reports as a safe stop and, the arm at rest, recovers from on its own (unless
+//! told not to). Waits are bounded (generously: the machine is shared),
 //! no timing is asserted.
 
 use std::net::{IpAddr, Ipv4Addr};
@@ -75,7 +76,7 @@ impl Drop for Fake {
     }
 }
 
-fn spawn_driver(ipc: &IpcConfig, fake: &Fake, log: &Path) -> OwnedProcess {
+fn spawn_driver(ipc: &IpcConfig, fake: &Fake, log: &Path, extra: &[&str]) -> OwnedProcess {
     OwnedProcess::spawn(
         Command::new(env!("CARGO_BIN_EXE_panda-driver"))
             .arg("--config-dir")
@@ -83,6 +84,7 @@ fn spawn_driver(ipc: &IpcConfig, fake: &Fake, log: &Path) -> OwnedProcess {
             .args(["--backend", "fci", "--robot-ip", "127.0.0.1"])
             .args(["--fci-port", &fake.port.to_string()])
             .args(["--hand-port", &fake.hand_port.to_string()])
+            .args(extra)
             .env(PREFIX_ENV, &ipc.prefix)
             .stderr(std::fs::File::create(log).unwrap()),
     )
@@ -148,7 +150,7 @@ fn the_fci_driver_follows_commands_grasps_and_finishes_on_stale_commands() {
     {
         let bus = Bus::open_with("fci-test", &ipc).unwrap();
         let mut stack = Stack::new(&bus);
-        let driver = spawn_driver(&ipc, &fake, &log);
+        let driver = spawn_driver(&ipc, &fake, &log, &[]);
         // Tracking: the robot's joint velocity reaches the command.
         assert!(
             stack.until(&bus, Some(0.2), |s| s
@@ -209,12 +211,18 @@ fn the_fci_driver_follows_commands_grasps_and_finishes_on_stale_commands() {
     unsafe { remove_domain(&ipc) }.unwrap();
 }
 
-#[test]
-fn dropped_commands_raise_a_reflex_that_the_driver_reports_as_a_safe_stop() {
+/// The fake robot drops 25 commands while the motion runs (the robot's reflex comes after 20),
+/// with `extra` flags to the driver; returns once the driver reported the reflex as a held
+/// safe-stop, and `after` has then held, with the robot and the driver's log.
+fn reflex_run(
+    tag: &str,
+    extra: &[&str],
+    mut after: impl FnMut(&mut Stack, &Bus) -> bool,
+) -> (FakeRobot, String) {
     let ipc = IpcConfig {
-        prefix: format!("motmt{}_fcir_", std::process::id()),
+        prefix: format!("motmt{}_{tag}_", std::process::id()),
     };
-    let log = std::env::temp_dir().join(format!("motm-fci-reflex-{}.log", std::process::id()));
+    let log = std::env::temp_dir().join(format!("motm-fci-{tag}-{}.log", std::process::id()));
     let fake = Fake::start(FakeRobotConfig {
         drop: Some(DropPlan {
             at_ms: 8000,
@@ -223,9 +231,9 @@ fn dropped_commands_raise_a_reflex_that_the_driver_reports_as_a_safe_stop() {
         ..FakeRobotConfig::default()
     });
     {
-        let bus = Bus::open_with("fci-reflex-test", &ipc).unwrap();
+        let bus = Bus::open_with(&format!("fci-{tag}-test"), &ipc).unwrap();
         let mut stack = Stack::new(&bus);
-        let driver = spawn_driver(&ipc, &fake, &log);
+        let driver = spawn_driver(&ipc, &fake, &log, extra);
         assert!(
             stack.until(&bus, Some(0.1), |s| s.joints.get().is_some_and(|j| (j
                 .velocity[0]
@@ -244,19 +252,68 @@ fn dropped_commands_raise_a_reflex_that_the_driver_reports_as_a_safe_stop() {
                 )),
             "the driver never reported the reflex"
         );
+        assert!(
+            after(&mut stack, &bus),
+            "{}",
+            std::fs::read_to_string(&log).unwrap()
+        );
         let status = driver.terminate().unwrap();
         assert!(status.success(), "{status:?}");
     }
     let robot = fake.finish();
     assert_eq!(robot.counters().reflexes, 1, "{}", robot.summary());
     assert_eq!(
-        robot.counters().recoveries,
+        robot.counters().violations.commands,
         0,
-        "never recovered automatically"
+        "{}",
+        robot.summary()
     );
     let log = std::fs::read_to_string(&log).unwrap();
     assert!(log.contains("communication_constraints_violation"), "{log}");
     assert!(log.contains("not commandable"), "{log}");
     // SAFETY: every process of this prefix has exited.
     unsafe { remove_domain(&ipc) }.unwrap();
+    (robot, log)
+}
+
+#[test]
+fn a_communication_reflex_is_recovered_once_the_arm_is_at_rest_and_the_robot_follows_again() {
+    let (robot, log) = reflex_run("fcic", &[], |stack, bus| {
+        stack.until(bus, Some(0.1), |s| {
+            s.status
+                .get()
+                .is_some_and(|st| st.mode() == Some(DriverMode::Tracking) && st.hardware_ready == 1)
+                && s.joints
+                    .get()
+                    .is_some_and(|j| (j.velocity[0] - 0.1).abs() < 1e-3)
+        })
+    });
+    assert_eq!(robot.counters().recoveries, 1, "{}", robot.summary());
+    assert!(robot.counters().motions >= 2, "{}", robot.summary());
+    assert!(
+        log.contains("AutomaticErrorRecovery answered Success"),
+        "{log}"
+    );
+    assert!(log.contains("1 reflexes, 1 recoveries"), "{log}");
+}
+
+#[test]
+fn dropped_commands_raise_a_reflex_that_the_driver_holds_without_automatic_recovery() {
+    // Two more seconds of fresh commands: the safe-stop is still held.
+    let (robot, _log) = reflex_run(
+        "fcir",
+        &["--communication-recoveries-per-minute", "0"],
+        |stack, bus| {
+            let start = Instant::now();
+            let mut held = true;
+            stack.until(bus, Some(0.1), |s| {
+                held &= s.status.get().is_some_and(|st| {
+                    st.mode() == Some(DriverMode::SafeStop) && st.hardware_ready == 0
+                });
+                !held || start.elapsed() > Duration::from_secs(2)
+            });
+            held
+        },
+    );
+    assert_eq!(robot.counters().recoveries, 0, "never recovered");
 }

@@ -8,10 +8,15 @@
 //!
 //! Motions: a joint-velocity motion starts when the driver is tracking a fresh command and the
 //! robot is idle; when the driver's output has ramped to zero (stale command or safe-stop) the
-//! motion is finished, and a later fresh command starts a new one. A reflex (e.g.
-//! `communication_constraints_violation`) or a robot that is not idle sets the task's hardware
-//! hold (safe-stop; status mode `SafeStop`, `hardware_ready` 0) and is printed once; only
-//! `--error-recovery` (an explicit user action, once at start) sends AutomaticErrorRecovery.
+//! motion is finished, and a later fresh command starts a new one. A reflex or a robot that is
+//! not idle sets the task's hardware hold (safe-stop; status mode `SafeStop`, `hardware_ready`
+//! 0) and is printed once. The driver recovers on its own (AutomaticErrorRecovery) from one
+//! reflex only, `communication_constraints_violation` alone, and only once the arm is at rest
+//! and the driver's own output is zero, at most `--communication-recoveries-per-minute` times
+//! in any minute ([`CommunicationRecovery`]): that reflex says the robot missed 20 commands (a
+//! starved control loop), not that the arm touched anything, and the stack's watchdog has
+//! already stopped the motion. Any other reflex (collision, limits) is held until an operator
+//! acts; `--error-recovery` (an explicit user action, once at start) sends AutomaticErrorRecovery.
 //! The systemd notifications (READY=1, WATCHDOG=1) follow completed cycles as in the standard
 //! service loop. On SIGTERM/SIGINT the motion is ramped down and finished before the driver exits; the
 //! latency from each state's arrival to its command being sent is printed then (median, p99,
@@ -49,9 +54,13 @@ pub struct FciArgs {
     /// Run without the Franka Hand.
     #[arg(long)]
     pub no_hand: bool,
-    /// Send one AutomaticErrorRecovery at start (an explicit user action; never automatic).
+    /// Send one AutomaticErrorRecovery at start (an explicit user action).
     #[arg(long)]
     pub error_recovery: bool,
+    /// Communication-constraints reflexes the driver recovers from on its own (the arm at rest,
+    /// no other error), at most this many in any minute; 0: held until an operator acts.
+    #[arg(long, default_value_t = 3)]
+    pub communication_recoveries_per_minute: u32,
     /// Close (Grasp): expected object width, m.
     #[arg(long, default_value_t = HandConfig::default().grasp_width)]
     pub grasp_width: f64,
@@ -123,6 +132,81 @@ impl LatencyStats {
         let median = percentile(&mut s, 50.0);
         let p99 = percentile(&mut s, 99.0);
         (n, median, p99, max)
+    }
+}
+
+/// When the driver sends AutomaticErrorRecovery on its own: the robot is in a reflex whose
+/// only error is `communication_constraints_violation`, every joint is at rest, the driver's
+/// own output is zero, the last request is [`CommunicationRecovery::RETRY_NS`] old, and fewer
+/// than `per_minute` requests were sent in the last minute.
+#[derive(Debug, Clone, Default)]
+pub struct CommunicationRecovery {
+    per_minute: u32,
+    sent_ns: std::collections::VecDeque<u64>,
+    total: u64,
+}
+
+impl CommunicationRecovery {
+    /// Joint speed under which a joint is at rest, rad/s.
+    pub const AT_REST: f64 = 1e-3;
+    /// Least time between two requests, ns (the robot answers within a few cycles).
+    pub const RETRY_NS: u64 = 200_000_000;
+    /// The window of `per_minute`, ns.
+    pub const WINDOW_NS: u64 = 60_000_000_000;
+
+    /// A policy allowing `per_minute` requests in any minute (0: never).
+    pub fn new(per_minute: u32) -> Self {
+        Self {
+            per_minute,
+            sent_ns: Default::default(),
+            total: 0,
+        }
+    }
+
+    /// Requests sent since the driver started.
+    pub fn total(&self) -> u64 {
+        self.total
+    }
+
+    /// Requests sent in the window ending at `now_ns`.
+    pub fn recent(&self, now_ns: u64) -> usize {
+        self.sent_ns
+            .iter()
+            .filter(|&&t| now_ns.saturating_sub(t) < Self::WINDOW_NS)
+            .count()
+    }
+
+    /// Whether to send AutomaticErrorRecovery now, for the robot's `state` and the driver's
+    /// last `output`; a yes is counted as sent at `now_ns`.
+    pub fn should_recover(
+        &mut self,
+        state: &motm_franka::RobotState,
+        output: &[f64; 7],
+        now_ns: u64,
+    ) -> bool {
+        let only_communication = state
+            .active_errors()
+            .eq([motm_franka::state::COMMUNICATION_CONSTRAINTS_VIOLATION]);
+        let at_rest = state.dq.iter().all(|v| v.abs() < Self::AT_REST);
+        let quiet = output.iter().all(|v| *v == 0.0);
+        let retry = self
+            .sent_ns
+            .back()
+            .is_none_or(|&t| now_ns.saturating_sub(t) >= Self::RETRY_NS);
+        while self
+            .sent_ns
+            .front()
+            .is_some_and(|&t| now_ns.saturating_sub(t) >= Self::WINDOW_NS)
+        {
+            self.sent_ns.pop_front();
+        }
+        let allowed = self.sent_ns.len() < self.per_minute as usize;
+        let go = state.in_reflex() && only_communication && at_rest && quiet && retry && allowed;
+        if go {
+            self.sent_ns.push_back(now_ns);
+            self.total += 1;
+        }
+        go
     }
 }
 
@@ -206,6 +290,9 @@ pub fn run_fci(
         );
     }
 
+    let mut recovery = CommunicationRecovery::new(args.communication_recoveries_per_minute);
+    let mut recovery_reported = true;
+    let mut output = [0.0; 7];
     let mut latency = LatencyStats::default();
     let mut stats = CycleStats::new(2000);
     let mut hand_states = 0u64;
@@ -251,6 +338,25 @@ pub fn run_fci(
             );
         }
         reported_blocked = blocked;
+        if blocked
+            && client.motion() == Motion::Idle
+            && recovery.should_recover(&state, &output, now_ns)
+        {
+            match client.request_error_recovery() {
+                Ok(()) => {
+                    recovery_reported = false;
+                    motm_bus::say!(
+                        "panda-driver: communication-constraints reflex, the arm at rest: AutomaticErrorRecovery ({} in the last minute)",
+                        recovery.recent(now_ns)
+                    );
+                }
+                Err(e) => motm_bus::say!("panda-driver: AutomaticErrorRecovery: {e}"),
+            }
+        }
+        if !recovery_reported && let Some(status) = client.recovery() {
+            recovery_reported = true;
+            motm_bus::say!("panda-driver: AutomaticErrorRecovery answered {status:?}");
+        }
         task.set_hardware_hold(stopping_for_exit || blocked);
         let mut joints = JointState::zeroed();
         joints.joint_count = 7;
@@ -282,6 +388,7 @@ pub fn run_fci(
             Motion::Running { .. } if should_finish(mode, &velocity) => client.finish(),
             _ => {}
         }
+        output = velocity;
         if client.command(&velocity).map_err(lost)?.is_some() {
             latency.record(arrival.elapsed().as_nanos() as u64);
         }
@@ -316,13 +423,14 @@ pub fn run_fci(
     let (n, median, p99, max) = latency.summary();
     let c = client.counters();
     motm_bus::say!(
-        "panda-driver: FCI exit: {} states, {} lost, {} bad datagrams, {} commands, {} motions, {} reflexes, {} safe stops, {} port failures; state-to-command latency over {n}: median {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+        "panda-driver: FCI exit: {} states, {} lost, {} bad datagrams, {} commands, {} motions, {} reflexes, {} recoveries, {} safe stops, {} port failures; state-to-command latency over {n}: median {:.1} µs, p99 {:.1} µs, max {:.1} µs",
         c.states,
         c.lost_states,
         c.bad_datagrams,
         c.commands_sent,
         c.motions,
         c.reflexes,
+        recovery.total(),
         c.safe_stops,
         stack.failures(),
         median as f64 / 1e3,
@@ -345,6 +453,46 @@ mod tests {
         ));
         assert!(should_finish(LimiterMode::Stale, &[0.0; 7]));
         assert!(should_finish(LimiterMode::SafeStop, &[0.0; 7]));
+    }
+
+    #[test]
+    fn only_a_communication_reflex_at_rest_is_recovered_and_at_most_per_minute() {
+        use motm_franka::RobotState;
+        use motm_franka::state::COMMUNICATION_CONSTRAINTS_VIOLATION as CCV;
+        let mut reflex = RobotState {
+            robot_mode: 4,
+            ..RobotState::default()
+        };
+        reflex.errors[CCV] = true;
+        let quiet = [0.0; 7];
+        let s = 1_000_000_000;
+        let mut policy = CommunicationRecovery::new(2);
+        // Not in a reflex, still moving, the driver still commanding, or another error: no.
+        let idle = RobotState {
+            robot_mode: 1,
+            ..reflex
+        };
+        assert!(!policy.should_recover(&idle, &quiet, s));
+        let mut moving = reflex;
+        moving.dq[3] = 0.01;
+        assert!(!policy.should_recover(&moving, &quiet, s));
+        let mut commanding = quiet;
+        commanding[0] = 1e-4;
+        assert!(!policy.should_recover(&reflex, &commanding, s));
+        let mut collision = reflex;
+        collision.errors[CCV + 1] = true;
+        assert!(!policy.should_recover(&collision, &quiet, s));
+        // The communication reflex at rest: yes, not again within the retry time, twice a
+        // minute at most, and again once the minute has passed.
+        assert!(policy.should_recover(&reflex, &quiet, s));
+        assert!(!policy.should_recover(&reflex, &quiet, s + 100_000_000));
+        assert!(policy.should_recover(&reflex, &quiet, 2 * s));
+        assert!(!policy.should_recover(&reflex, &quiet, 3 * s));
+        assert_eq!(policy.recent(3 * s), 2);
+        assert!(policy.should_recover(&reflex, &quiet, 62 * s));
+        assert_eq!(policy.total(), 3);
+        // 0 per minute: never.
+        assert!(!CommunicationRecovery::new(0).should_recover(&reflex, &quiet, s));
     }
 
     #[test]
