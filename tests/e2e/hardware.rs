@@ -2,7 +2,8 @@
 //! real protocols over loopback sockets to `fake-panda` and `fake-ld60`, whose physics is
 //! sim-world's. Frankie's exp1-dynamic succeeds with no command beyond a limit at the drivers
 //! nor at the fake robots; a killed panda-driver is restarted, connects to the fake robot again,
-//! and the task goes on.
+//! and the task goes on; a driver stalled for 100 ms recovers the robot from its
+//! communication-constraints reflex, and the task goes on.
 
 use motm_e2e::{assert_nothing_left, motm_json, one_stack_at_a_time, stack_processes};
 
@@ -85,6 +86,33 @@ fn a_killed_panda_driver_reconnects_to_the_fake_robot_and_the_task_goes_on() {
     assert_eq!(
         connected, 2,
         "one connection per driver instance:\n{stderr}"
+    );
+    assert_eq!(report["success"], true, "{report}\n{stderr}");
+    assert!(exit_ok, "{stderr}");
+}
+
+#[test]
+fn a_stalled_panda_driver_is_recovered_from_the_robots_reflex_and_the_task_goes_on() {
+    // A 100 ms SIGSTOP of the driver mid-task: the fake robot misses 20 commands in a row and
+    // stops on its communication-constraints reflex, as the Panda does. Once the arm is at
+    // rest the resumed driver sends AutomaticErrorRecovery and a new motion, and the task
+    // completes with no limit exceeded.
+    let _turn = one_stack_at_a_time();
+    let (report, exit_ok, stderr) = run_fake(
+        "stall",
+        &["--seed", "1", "--fault", "stop:panda-driver@6+0.1"],
+    );
+    let record = &report["faults_injected"][0];
+    assert_eq!(record["kind"], "stop", "{report}");
+    assert_eq!(record["outcome"], "resumed", "{report}\n{stderr}");
+    assert_eq!(restarts(&report, "panda-driver"), 0, "{report}");
+    assert!(
+        stderr.contains("(communication_constraints_violation)"),
+        "no reflex:\n{stderr}"
+    );
+    assert!(
+        stderr.contains("panda-driver: AutomaticErrorRecovery answered Success"),
+        "{stderr}"
     );
     assert_eq!(report["success"], true, "{report}\n{stderr}");
     assert!(exit_ok, "{stderr}");
