@@ -255,7 +255,7 @@ impl SimWorld {
             self.meter.push(tool.translation.vector);
         }
         if self.status == TrialStatus::Running {
-            if let Some(outcome) = self.world.outcome() {
+            if let Some(outcome) = self.world.decided() {
                 self.status = TrialStatus::Decided(outcome);
                 self.task_time = now;
             } else if now >= self.timeout {

@@ -5,7 +5,9 @@
 //! [`HardwareCommand`], in physics sub-steps of at most `1 / physics_rate_hz` (1 kHz). The robot
 //! may read only [`World::sensors`] (odometry, joint encoders, gripper opening, time);
 //! [`World::truth`] is for metrics, the renderer and tests. The world knows how each trial ends:
-//! [`World::outcome`].
+//! [`World::outcome`] (the first failure) and [`World::decided`] (when the trial is over: a
+//! lost object ends a mission of one task, but a longer mission goes on, as a robot's would,
+//! until it ends or something worse happens).
 //!
 //! Imperfections of the robot, each from the scenario's `[noise]` table and the seed:
 //! - **latency**: a command takes effect `noise.latency` seconds after it is given;
@@ -170,6 +172,15 @@ pub enum FailureReason {
 }
 
 impl FailureReason {
+    /// Whether the failure loses one object (knocked off, missed, dropped outside) and leaves
+    /// the robot able to go on with the rest of its mission.
+    pub fn object_lost(&self) -> bool {
+        matches!(
+            self,
+            Self::KnockedOff | Self::MissedGrasp | Self::DroppedOutside
+        )
+    }
+
     /// The reason as reported in trial results: `knocked_off`, `missed_grasp`,
     /// `dropped_outside`, `base_collision` or `task_failed`.
     pub fn as_str(&self) -> &'static str {
@@ -255,6 +266,8 @@ pub struct World {
     arm_noise: SimRng,
     object_motion: SimRng,
     outcome: Option<Outcome>,
+    /// A failure that ends the trial has happened (any but a lost object), or the mission ended.
+    ended: bool,
     rejected_commands: u64,
 }
 
@@ -353,6 +366,7 @@ impl World {
             arm_noise: SimRng::new(seed, Stream::ArmNoise),
             object_motion: SimRng::new(seed, Stream::ObjectMotion),
             outcome: None,
+            ended: false,
             rejected_commands: 0,
             config,
         }
@@ -383,13 +397,26 @@ impl World {
         &self.config
     }
 
-    /// How the trial ended, or `None` while it is still running. The first failure sticks.
+    /// The trial's result so far: `None` while nothing is decided, else success or the first
+    /// failure (which sticks).
     pub fn outcome(&self) -> Option<Outcome> {
         self.outcome
     }
 
+    /// How the trial ended, or `None` while it still runs. A lost object
+    /// ([`FailureReason::object_lost`]) ends it only when the mission has a single task: in a
+    /// longer one the mission goes on with the tasks that do not need that object, and the
+    /// trial ends, with that first failure, when the mission ends
+    /// ([`World::mission_gave_up`]) or on a failure of any other kind.
+    pub fn decided(&self) -> Option<Outcome> {
+        let outcome = self.outcome?;
+        let tasks = self.truth.objects.len() + self.truth.buttons.len();
+        let over = self.ended || outcome == Outcome::Success || tasks <= 1;
+        over.then_some(outcome)
+    }
+
     /// The mission ended having given a task up, or without every object where it belongs:
-    /// the trial fails with [`FailureReason::TaskFailed`] (unless it is already decided).
+    /// the trial ends, failed with [`FailureReason::TaskFailed`] unless it had already failed.
     pub fn mission_gave_up(&mut self) {
         self.fail(FailureReason::TaskFailed);
     }
@@ -525,6 +552,7 @@ impl World {
         if self.outcome.is_none() {
             self.outcome = Some(Outcome::Failure(reason));
         }
+        self.ended |= !reason.object_lost();
     }
 
     fn cube_half(&self) -> f64 {

@@ -187,6 +187,45 @@ fn a_finger_landing_on_the_cube_knocks_it_off() {
     grasp(&mut world, &robot, at + Vector3::new(0.0, 0.0, 0.1), at);
     assert_eq!(world.truth().objects[0].state, ObjectState::KnockedOff);
     assert_eq!(world.outcome().unwrap().failure(), Some("knocked_off"));
+    // A mission of one task: the lost cube ends the trial.
+    assert_eq!(world.decided(), world.outcome());
+}
+
+#[test]
+fn a_lost_cube_leaves_a_longer_mission_going_until_it_ends() {
+    let robot = frankie();
+    let tool_y = ready_tool(&robot).rotation * Vector3::y();
+    let offset = tool_y * 0.03;
+    let cube = Vector3::new(0.634, 0.0, 0.45) + offset;
+    let body = format!(
+        "[[objects]]\nposition = [{}, {}, {}]\nmotion = \"static\"\nplace = [0.634, 0.45, 0.3]\n\
+         [[objects]]\nposition = [2.0, -1.0, 0.45]\nmotion = \"static\"\nplace = [0.634, 0.45, 0.3]\n",
+        cube.x, cube.y, cube.z
+    );
+    let mut world = World::new(&robot, &scenario(&body, NO_NOISE), 1);
+    let at = world.truth().objects[0].position() - offset;
+    grasp(&mut world, &robot, at + Vector3::new(0.0, 0.0, 0.1), at);
+    assert_eq!(world.truth().objects[0].state, ObjectState::KnockedOff);
+    let knocked_off = Some(Outcome::Failure(FailureReason::KnockedOff));
+    assert_eq!(world.outcome(), knocked_off);
+    // The second cube is still to be picked: the trial goes on ...
+    assert_eq!(world.decided(), None);
+    world.step(
+        DT,
+        &command(
+            &robot,
+            vec![0.0; 7],
+            BaseVelocity::default(),
+            GripperCommand::Open,
+        ),
+    );
+    assert_eq!(world.decided(), None);
+    // ... until the mission ends, with the first failure.
+    world.mission_gave_up();
+    assert_eq!(world.decided(), knocked_off);
+    assert!(FailureReason::KnockedOff.object_lost());
+    assert!(!FailureReason::BaseCollision.object_lost());
+    assert!(!FailureReason::TaskFailed.object_lost());
 }
 
 #[test]
