@@ -230,12 +230,6 @@ fn echo_peer_answers_every_sample_drops_bad_ones_and_exits_cleanly() {
             heartbeat.get().is_some()
         });
 
-        // A command with a NaN is dropped by the peer and counted, never echoed.
-        let mut bad = ArmVelocityCommand::zeroed();
-        bad.joint_count = 7;
-        bad.velocity[2] = f64::NAN;
-        commands.publish(bad).unwrap();
-
         for i in 0..50u32 {
             let mut command = ArmVelocityCommand::zeroed();
             command.joint_count = 7;
@@ -255,11 +249,22 @@ fn echo_peer_answers_every_sample_drops_bad_ones_and_exits_cleanly() {
         assert_eq!(replies.accepted(), 50);
         assert_eq!(replies.rejected(), 0);
 
+        // A command with a NaN is dropped by the peer and counted, never echoed. It is sent
+        // once the echoes show the peer connected: sent as soon as the peer's heartbeat came,
+        // it could go out before the peer's subscriber was connected, and be lost unseen.
+        let mut bad = ArmVelocityCommand::zeroed();
+        bad.joint_count = 7;
+        bad.velocity[2] = f64::NAN;
+        commands.publish(bad).unwrap();
         wait_until("a heartbeat reporting the dropped command", || {
             heartbeat.update().unwrap();
             let beat = heartbeat.get().unwrap();
             beat.rejected_messages == 1 && beat.cycles >= 50
         });
+        assert!(
+            replies.receive().unwrap().is_none(),
+            "the bad command was echoed"
+        );
         let beat = *heartbeat.get().unwrap();
         assert_eq!(beat.process_name(), "echo");
         assert_eq!(beat.pid, peer.child.id());
