@@ -6,8 +6,8 @@
 //! may read only [`World::sensors`] (odometry, joint encoders, gripper opening, time);
 //! [`World::truth`] is for metrics, the renderer and tests. The world knows how each trial ends:
 //! [`World::outcome`] (the first failure) and [`World::decided`] (when the trial is over: a
-//! lost object ends a mission of one task, but a longer mission goes on, as a robot's would,
-//! until it ends or something worse happens).
+//! lost object ends a scenario of one object or button, but with more of them the mission goes
+//! on, as a robot's would, until it ends or something worse happens).
 //!
 //! Imperfections of the robot, each from the scenario's `[noise]` table and the seed:
 //! - **latency**: a command takes effect `noise.latency` seconds after it is given;
@@ -404,14 +404,14 @@ impl World {
     }
 
     /// How the trial ended, or `None` while it still runs. A lost object
-    /// ([`FailureReason::object_lost`]) ends it only when the mission has a single task: in a
-    /// longer one the mission goes on with the tasks that do not need that object, and the
-    /// trial ends, with that first failure, when the mission ends
-    /// ([`World::mission_gave_up`]) or on a failure of any other kind.
+    /// ([`FailureReason::object_lost`]) ends it only when the scenario has a single object or
+    /// button (its pick and place are all there is to do): with more, the mission goes on with
+    /// the tasks that do not need that object, and the trial ends, with that first failure,
+    /// when the mission ends ([`World::mission_gave_up`]) or on a failure of any other kind.
     pub fn decided(&self) -> Option<Outcome> {
         let outcome = self.outcome?;
-        let tasks = self.truth.objects.len() + self.truth.buttons.len();
-        let over = self.ended || outcome == Outcome::Success || tasks <= 1;
+        let targets = self.truth.objects.len() + self.truth.buttons.len();
+        let over = self.ended || outcome == Outcome::Success || targets <= 1;
         over.then_some(outcome)
     }
 

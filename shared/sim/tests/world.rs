@@ -187,7 +187,7 @@ fn a_finger_landing_on_the_cube_knocks_it_off() {
     grasp(&mut world, &robot, at + Vector3::new(0.0, 0.0, 0.1), at);
     assert_eq!(world.truth().objects[0].state, ObjectState::KnockedOff);
     assert_eq!(world.outcome().unwrap().failure(), Some("knocked_off"));
-    // A mission of one task: the lost cube ends the trial.
+    // A scenario of one object: the lost cube ends the trial.
     assert_eq!(world.decided(), world.outcome());
 }
 
