@@ -172,8 +172,13 @@ impl CommunicationRecovery {
     pub fn recent(&self, now_ns: u64) -> usize {
         self.sent_ns
             .iter()
-            .filter(|&&t| now_ns.saturating_sub(t) < Self::WINDOW_NS)
+            .filter(|&&t| Self::in_window(t, now_ns))
             .count()
+    }
+
+    /// Whether a request sent at `sent_ns` counts against the minute ending at `now_ns`.
+    fn in_window(sent_ns: u64, now_ns: u64) -> bool {
+        now_ns.saturating_sub(sent_ns) < Self::WINDOW_NS
     }
 
     /// Whether to send AutomaticErrorRecovery now, for the robot's `state` and the driver's
@@ -196,7 +201,7 @@ impl CommunicationRecovery {
         while self
             .sent_ns
             .front()
-            .is_some_and(|&t| now_ns.saturating_sub(t) >= Self::WINDOW_NS)
+            .is_some_and(|&t| !Self::in_window(t, now_ns))
         {
             self.sent_ns.pop_front();
         }
