@@ -70,6 +70,13 @@ pub struct PerceptionConfig {
     /// (tens of centimetres over a long mission). Cubes and button caps keep the narrower gate
     /// even for their first fix: far, grazing views of a cap put its fix half a metre off.
     pub max_hint_distance: f64,
+    /// Consecutive images whose container fixes agree (within
+    /// [`CONTAINER_CONFIRMATION_DISTANCE`]) before a container's first fix is taken. Default 3
+    /// (0.1 s at 30 Hz): a container at the edge of the container range, seen from the side,
+    /// gives a fix in a single image now and then, up to half a metre short of it (its near
+    /// wall), which sent the base round a new pass; the fixes of a container in range come in
+    /// every image. 1 takes the first fix at once.
+    pub container_confirmations: usize,
     /// A pixel is blue (a container) when its blue channel is at least this (8-bit). Default 80.
     pub min_blue: u8,
     /// ... and its blue channel exceeds both red and green by at least this. Default 50: the
@@ -101,6 +108,11 @@ pub struct PerceptionConfig {
     pub max_blob_growth: f64,
 }
 
+/// Farthest apart successive container fixes may be and still confirm each other
+/// ([`PerceptionConfig::container_confirmations`]), m: the fixes of a container in range, from a
+/// camera moving at up to 0.4 m/s, move by a few centimetres from one image to the next.
+pub const CONTAINER_CONFIRMATION_DISTANCE: f64 = 0.1;
+
 /// Fewest extra pixels over the target's last blob for a blob to count as a merge (blobs of a
 /// few pixels grow by whole pixels from one frame to the next).
 pub const MERGE_MIN_EXTRA_PIXELS: usize = 4;
@@ -117,6 +129,7 @@ impl Default for PerceptionConfig {
             max_container_range: 0.7,
             max_prior_distance: 0.3,
             max_hint_distance: 0.6,
+            container_confirmations: 3,
             min_blue: 80,
             min_blue_margin: 50,
             velocity_significance: 2.0,
@@ -154,6 +167,13 @@ impl PerceptionConfig {
                 file,
                 "perception.max_blob_growth",
                 format!("must exceed 1, got {}", self.max_blob_growth),
+            ));
+        }
+        if self.container_confirmations == 0 {
+            return Err(ModelError::invalid(
+                file,
+                "perception.container_confirmations",
+                "must be at least 1",
             ));
         }
         if self.min_pixels == 0 {
@@ -398,6 +418,9 @@ pub struct Perception {
     blobs: Vec<Blob>,
     /// Pixels of the blob of the last fix (0 before the first).
     last_pixels: usize,
+    /// Before a container's first fix: the latest fix and how many images in a row agreed
+    /// with it.
+    unconfirmed: Option<(Vector3<f64>, usize)>,
 }
 
 impl Perception {
@@ -415,6 +438,7 @@ impl Perception {
             blob_of_root: Vec::new(),
             blobs: Vec::new(),
             last_pixels: 0,
+            unconfirmed: None,
         }
     }
 
@@ -427,7 +451,11 @@ impl Perception {
     /// non-finite pose, height or stamp) the previous estimate is returned with `visible = false`.
     pub fn step(&mut self, input: &PerceptionInput) -> ObjectEstimate {
         self.estimate.visible = false;
-        if let Some((pixels, position)) = self.locate(input) {
+        let located = self.locate(input);
+        if located.is_none() {
+            self.unconfirmed = None;
+        }
+        if let Some((pixels, position)) = located.filter(|&(_, p)| self.confirmed(input, p)) {
             self.last_pixels = pixels;
             self.record_fix(input.stamp, position);
             // Containers stand still: the fixes of one seen from a moving base shift as the
@@ -437,6 +465,22 @@ impl Perception {
             }
         }
         self.estimate
+    }
+
+    /// Whether `position`, this image's fix, may be taken: always, except for a container's
+    /// first fix, which needs `container_confirmations` images in a row with agreeing fixes.
+    /// Called for every image with its fix; an image without one starts the count again.
+    fn confirmed(&mut self, input: &PerceptionInput, position: Vector3<f64>) -> bool {
+        if input.colour != BlobColour::Blue || self.estimate.valid {
+            return true;
+        }
+        let count = match self.unconfirmed {
+            Some((last, n)) if (position - last).norm() <= CONTAINER_CONFIRMATION_DISTANCE => n + 1,
+            _ => 1,
+        };
+        let done = count >= self.config.container_confirmations;
+        self.unconfirmed = (!done).then_some((position, count));
+        done
     }
 
     /// The world position of the cube in this image, if it is seen.
@@ -844,6 +888,52 @@ mod tests {
             "{estimate:?}"
         );
         assert!(estimate.position.z.abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_containers_first_fix_takes_three_agreeing_images_in_a_row() {
+        let blue = |centre: (usize, usize)| -> Vec<u8> {
+            image_with_squares(&[centre], 4)
+                .chunks_exact(3)
+                .flat_map(|p| {
+                    if p[0] == 200 {
+                        [20, 40, 200]
+                    } else {
+                        [p[0], p[1], p[2]]
+                    }
+                })
+                .collect()
+        };
+        let grey = vec![100u8; 320 * 240 * 3];
+        let step = |p: &mut Perception, image: &[u8], k: u32| {
+            p.step(&PerceptionInput {
+                colour: BlobColour::Blue,
+                ..input(image, f64::from(k) / 30.0)
+            })
+        };
+        let (here, there) = (blue((159, 119)), blue((110, 119)));
+        // A lone fix, then none, then one 0.27 m off, then another: nothing is taken.
+        let mut p = Perception::new(PerceptionConfig::default(), calibration());
+        for (k, image) in [&here, &grey, &here, &there, &here].into_iter().enumerate() {
+            let estimate = step(&mut p, image, k as u32);
+            assert!(!estimate.valid && !estimate.visible, "image {k}");
+        }
+        // Two more agreeing images make three: the fix is taken, and from then on every one.
+        assert!(!step(&mut p, &here, 5).valid);
+        let estimate = step(&mut p, &here, 6);
+        assert!(estimate.valid && estimate.visible);
+        assert!(step(&mut p, &there, 7).visible);
+        // A red target is never held back; with 1 neither is a container.
+        let mut p = Perception::new(PerceptionConfig::default(), calibration());
+        assert!(
+            p.step(&input(&image_with_squares(&[(159, 119)], 4), 0.0))
+                .valid
+        );
+        let once = PerceptionConfig {
+            container_confirmations: 1,
+            ..PerceptionConfig::default()
+        };
+        assert!(step(&mut Perception::new(once, calibration()), &here, 0).valid);
     }
 
     #[test]
