@@ -452,10 +452,7 @@ impl Perception {
     pub fn step(&mut self, input: &PerceptionInput) -> ObjectEstimate {
         self.estimate.visible = false;
         let located = self.locate(input);
-        if located.is_none() {
-            self.unconfirmed = None;
-        }
-        if let Some((pixels, position)) = located.filter(|&(_, p)| self.confirmed(input, p)) {
+        if let Some((pixels, position)) = self.confirmed(input, located) {
             self.last_pixels = pixels;
             self.record_fix(input.stamp, position);
             // Containers stand still: the fixes of one seen from a moving base shift as the
@@ -467,20 +464,28 @@ impl Perception {
         self.estimate
     }
 
-    /// Whether `position`, this image's fix, may be taken: always, except for a container's
+    /// This image's fix, `located`, where it may be taken: always, except for a container's
     /// first fix, which needs `container_confirmations` images in a row with agreeing fixes.
-    /// Called for every image with its fix; an image without one starts the count again.
-    fn confirmed(&mut self, input: &PerceptionInput, position: Vector3<f64>) -> bool {
+    /// Called for every image; an image without a fix starts the count again.
+    fn confirmed(
+        &mut self,
+        input: &PerceptionInput,
+        located: Option<(usize, Vector3<f64>)>,
+    ) -> Option<(usize, Vector3<f64>)> {
         if input.colour != BlobColour::Blue || self.estimate.valid {
-            return true;
+            return located;
         }
+        let Some((_, position)) = located else {
+            self.unconfirmed = None;
+            return None;
+        };
         let count = match self.unconfirmed {
             Some((last, n)) if (position - last).norm() <= CONTAINER_CONFIRMATION_DISTANCE => n + 1,
             _ => 1,
         };
         let done = count >= self.config.container_confirmations;
         self.unconfirmed = (!done).then_some((position, count));
-        done
+        located.filter(|_| done)
     }
 
     /// The world position of the cube in this image, if it is seen.
