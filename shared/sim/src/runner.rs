@@ -344,6 +344,8 @@ fn baseline_graph(
     if method == Method::Reactive {
         let mut reactive = config.reactive.clone();
         reactive.max_base_speed = scenario.base_speed;
+        reactive.object_yaw = config.motm.reacher.object_yaw;
+        reactive.yaw_symmetry = config.motm.reacher.yaw_symmetry;
         let baseline = ReactiveBaseline::new(robot.clone(), reactive, tasks.clone());
         let mut s = hardware_graph(robot, sim, config, Some(&tasks))?;
         s.add(

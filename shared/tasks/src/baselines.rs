@@ -62,11 +62,13 @@ ports! {
 }
 
 /// The mission state of a baseline working on `tasks[index]` (complete past the end), its
-/// known positions put into odometry by `correction` (`None`: odometry taken as the world).
+/// known positions put into odometry by `correction` (`None`: odometry taken as the world),
+/// having given `failed_tasks` up.
 fn mission_state(
     tasks: &[MissionTask],
     index: usize,
     correction: Option<&OdometryCorrection>,
+    failed_tasks: usize,
     now_ns: u64,
 ) -> msgs::MissionState {
     let task = tasks.get(index);
@@ -85,7 +87,7 @@ fn mission_state(
         odometry_offset: correction.map_or([0.0; 3], OdometryCorrection::offset),
         odometry_calibrated: correction.is_some_and(OdometryCorrection::calibrated),
         tool_to_target: f64::INFINITY,
-        failed_tasks: 0,
+        failed_tasks,
         changed: false,
     };
     convert::stamped(convert::mission_state(&out), now_ns)
@@ -157,7 +159,13 @@ impl Task for ReactiveTask {
         else {
             let correction = self.localizer.correction();
             return BaselineOutputs {
-                mission: Some(mission_state(&self.tasks, index, Some(correction), now_ns)),
+                mission: Some(mission_state(
+                    &self.tasks,
+                    index,
+                    Some(correction),
+                    self.baseline.failed_tasks(),
+                    now_ns,
+                )),
                 ..BaselineOutputs::default()
             };
         };
@@ -166,7 +174,13 @@ impl Task for ReactiveTask {
             self.localizer.advance(&base);
         }
         let correction = self.localizer.correction();
-        let mission = mission_state(&self.tasks, index, Some(correction), now_ns);
+        let mission = mission_state(
+            &self.tasks,
+            index,
+            Some(correction),
+            self.baseline.failed_tasks(),
+            now_ns,
+        );
         let last = self.tasks.last().copied();
         let Some(task) = self.tasks.get(index).copied().or(last) else {
             return BaselineOutputs::default();
@@ -289,7 +303,7 @@ impl Task for PlanningTask {
         } else {
             (plan.gripper, 0)
         };
-        let mission = mission_state(&self.tasks, index, None, now_ns);
+        let mission = mission_state(&self.tasks, index, None, 0, now_ns);
         commands(now_ns, mission, &resolved.arm_qd, &resolved.base, gripper)
     }
 }

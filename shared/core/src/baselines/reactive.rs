@@ -18,7 +18,12 @@
 //!   only within `grasp_error` of that point, so the tool point is inside the grasp model's height
 //!   window (from 12 mm above to 25 mm below the centre) when the closure starts; closing at the
 //!   holistic `e_t < 0.02` left the fingertips on the cube's top edge and knocked it off.
-//! - **Orientation.** Top-down, keeping the tool's current yaw (the cube's yaw is not measured).
+//! - **Orientation.** Top-down. A pick's gripper yaw is the yaw the objects stand at
+//!   (`object_yaw`, the same prior as MotM's reacher: perception measures no yaw) plus the
+//!   multiple of `yaw_symmetry` closest to the tool's current yaw; other tasks keep the tool's
+//!   yaw. Keeping the tool's yaw on a pick, as the holistic reference does, closes the fingers
+//!   on a cube turned by up to 45° from them wherever the base comes in at a slant (a row's
+//!   cubes approached from the container), and they knock it off.
 //! - **Base stand-off.** The base does not drive closer than `base_standoff` to the target
 //!   (the holistic law alone would run it into the platform): its forward speed toward the
 //!   target is capped at the speed from which it can still stop there. Earlier pick platforms
@@ -28,7 +33,12 @@
 //!   platform it had to leave). When an earlier platform blocks the way, the base turns in place
 //!   toward the side of the current goal at `escape_turn_rate` until the platform leaves its
 //!   path: the holistic facing term alone turns the base only as far as the tool, which can leave
-//!   the platform in the way for good.
+//!   the platform in the way for good. A platform beside the target holds the base where its
+//!   footprint, swept ahead, would come near it (a row's neighbour, met at a slant, is at the
+//!   front corner); a base held so short of its stand-off turns square to the row
+//!   (`squaring_tolerance`, `squaring_release`).
+//! - **Giving up.** A task whose approach or descent makes no progress for `stall_timeout` is
+//!   given up, with its place if it is a pick, and the mission goes on.
 //! - **Closing** ends when the fingers reach `closed_opening` or after `closing_timeout`.
 
 use nalgebra::{Isometry3, Translation3, Vector2, Vector3};
@@ -37,8 +47,8 @@ use serde::Deserialize;
 use crate::holistic::{HolisticConfig, HolisticController, HolisticInput};
 use crate::kinematics::BasePose;
 use crate::localization::world_to_odometry;
-use crate::mission::{MissionTask, TaskKind};
-use crate::reacher::{tool_yaw, top_down};
+use crate::mission::{MissionTask, TaskKind, give_up_task};
+use crate::reacher::{symmetric_yaw, tool_yaw, top_down};
 use crate::resolver::ResolveStatus;
 use crate::robot::Robot;
 use crate::types::{BaseVelocity, GripperCommand, TargetEstimate};
@@ -93,16 +103,35 @@ pub struct ReactiveConfig {
     pub platform_radius: f64,
     /// Margin kept between the base's footprint and a platform beside the target, m.
     pub footprint_margin: f64,
-    /// Further margin ahead of the base for a platform beside the target, m: the base's
-    /// response lags its command (it was measured to stop 5 cm past the speed cap's point from
-    /// 0.3 m/s), and odometry drifts.
-    pub stopping_margin: f64,
+    /// Lag of the base's response to its command, s: the base overshoots the point where the
+    /// speed cap stops it by its speed times this (it was measured to stop 5 cm past it from
+    /// 0.3 m/s), and the cap for a platform beside the target allows for it. At a crawl the
+    /// overshoot is nil, so a base creeping up to a row's neighbour is not held back for it.
+    pub response_lag: f64,
     /// Turn rate while an earlier platform blocks the way, rad/s (a third of Frankie's 1.5 rad/s
     /// limit: a quarter turn takes about 3 s).
     pub escape_turn_rate: f64,
+    /// A base held within this of a platform beside the target, and farther than this beyond
+    /// `base_standoff` from the current target, turns square to the row, m.
+    pub squaring_tolerance: f64,
+    /// A squaring turn goes on until the platform leaves this much room ahead, m.
+    pub squaring_release: f64,
     /// Half-width of the strip ahead of the base in which a platform counts as in its path, m
     /// (half the base width plus half a platform plus a margin).
     pub base_corridor: f64,
+    /// Yaw the mission's objects stand at about world z, rad (MotM's `reacher.object_yaw`).
+    pub object_yaw: f64,
+    /// Symmetry of the objects about the vertical, rad (MotM's `reacher.yaw_symmetry`: π/2 for
+    /// a cube).
+    pub yaw_symmetry: f64,
+    /// A task is given up (reported failed; the mission goes on with the next task that does
+    /// not need it) when its approach or descent has not brought the tool `progress_distance`
+    /// nearer its point for this long, s. 20 s: a drive to a target improves by that much every
+    /// tenth of a second, and the stalls seen (a base held by a row's platforms with the arm at
+    /// its reach, a base turning to and fro between two of them) last for good.
+    pub stall_timeout: f64,
+    /// Least improvement of the stage's error that counts as progress, m.
+    pub progress_distance: f64,
     /// Largest base forward speed, m/s: the trial's v_F, so every method has the same top speed
     /// (the holistic law alone would drive Frankie's base at its 1.2 m/s limit).
     pub max_base_speed: f64,
@@ -125,9 +154,15 @@ impl Default for ReactiveConfig {
             platform_clearance: 0.75,
             platform_radius: 0.21,
             footprint_margin: 0.05,
-            stopping_margin: 0.07,
+            response_lag: 0.23,
             escape_turn_rate: 0.5,
+            squaring_tolerance: 0.03,
+            squaring_release: 0.1,
             base_corridor: 0.55,
+            object_yaw: 0.0,
+            yaw_symmetry: std::f64::consts::FRAC_PI_2,
+            stall_timeout: 20.0,
+            progress_distance: 0.02,
             max_base_speed: 0.3,
         }
     }
@@ -198,13 +233,17 @@ pub struct ReactiveBaseline {
     stage_start: f64,
     /// The grasp point and the held pose of the lift waypoint, fixed when the fingers close.
     anchor: Option<Vector3<f64>>,
+    /// Whether each task was given up.
+    failed: Vec<bool>,
+    /// The platform a squaring turn is freeing the base from, and the turn rate.
+    squaring: Option<(usize, f64)>,
+    /// When the stage's error last reached a new best by `progress_distance`, and that best.
+    progress: Option<(f64, f64)>,
     gripper: GripperCommand,
     /// The base's forward acceleration limit, m/s² (from the model).
     base_deceleration: f64,
-    /// How far ahead (along the heading) and beside the heading line (m) a platform beside
-    /// the target stops the base: the base's half-length and half-width, each plus
-    /// `platform_radius` and `footprint_margin`, and the length plus `stopping_margin`.
-    beside_target_standoff: [f64; 2],
+    /// The base footprint's half-length and half-width, m.
+    half_footprint: [f64; 2],
 }
 
 impl ReactiveBaseline {
@@ -215,13 +254,10 @@ impl ReactiveBaseline {
         } else {
             ReactiveStage::Approach
         };
-        let grown = config.platform_radius + config.footprint_margin;
         let [length, width] = robot.config.footprint;
         Self {
-            beside_target_standoff: [
-                0.5 * length + grown + config.stopping_margin,
-                0.5 * width + grown,
-            ],
+            failed: vec![false; tasks.len()],
+            half_footprint: [0.5 * length, 0.5 * width],
             base_deceleration: robot.limits()[1].acceleration,
             controller: HolisticController::new(robot.clone(), config.holistic.clone()),
             config,
@@ -231,6 +267,8 @@ impl ReactiveBaseline {
             stage,
             stage_start: 0.0,
             anchor: None,
+            progress: None,
+            squaring: None,
             gripper: GripperCommand::Open,
         }
     }
@@ -259,11 +297,46 @@ impl ReactiveBaseline {
     fn enter(&mut self, stage: ReactiveStage, t: f64) {
         self.stage = stage;
         self.stage_start = t;
+        self.progress = None;
+    }
+
+    /// Records the stage's error at time `t` and tells whether the stage has stalled: its
+    /// error has not come `progress_distance` below its best for `stall_timeout`.
+    fn stalled(&mut self, t: f64, stage_error: f64) -> bool {
+        let (since, best) = match self.progress {
+            Some((_, best)) if stage_error < best - self.config.progress_distance => {
+                (t, stage_error)
+            }
+            Some(progress) => progress,
+            None => (t, stage_error),
+        };
+        self.progress = Some((since, best));
+        t - since > self.config.stall_timeout
+    }
+
+    /// How many tasks were given up.
+    pub fn failed_tasks(&self) -> usize {
+        self.failed.iter().filter(|&&f| f).count()
     }
 
     /// Finishes the current task.
     fn next_task(&mut self, t: f64) {
-        self.task += 1;
+        self.task = (self.task + 1..self.tasks.len())
+            .find(|&index| !self.failed[index])
+            .unwrap_or(self.tasks.len());
+        self.go_on(t);
+    }
+
+    /// Gives the current task up ([`give_up_task`]: a pick's place goes with it), opens the
+    /// fingers and goes on with the next task.
+    fn give_up(&mut self, t: f64) {
+        self.task = give_up_task(&self.tasks, &mut self.failed, self.task);
+        self.gripper = GripperCommand::Open;
+        self.go_on(t);
+    }
+
+    /// Starts the current task (or completes the mission when none is left).
+    fn go_on(&mut self, t: f64) {
         self.anchor = None;
         let stage = if self.task >= self.tasks.len() {
             ReactiveStage::Complete
@@ -295,7 +368,8 @@ impl ReactiveBaseline {
     /// the current target where it is seen (`target`: the known position can be metres of drift
     /// or a neighbour's spacing off, and a stand-off from it can hold the base out of the arm's
     /// reach of the cube for good), `platform_clearance` short of earlier ones it has to pass and
-    /// clear of those beside the target (`platform_radius`).
+    /// clear of those beside the target ([`Self::room_beside`]), where it also allows for the
+    /// overshoot of its response lag.
     fn clamp_forward_speed(
         &self,
         base: &BasePose,
@@ -306,7 +380,11 @@ impl ReactiveBaseline {
         let heading = Vector2::new(base.yaw.cos(), base.yaw.sin()) * v.signum();
         let from = Vector2::new(base.x, base.y);
         let last = (self.task + 1).min(self.tasks.len());
-        let room = self.tasks[..last]
+        let deceleration = self.base_deceleration;
+        // The overshoot is the speed times the response lag, so the speed that stops in `room`
+        // with it solves v² = 2a·(room − lag·v).
+        let lag_term = deceleration * self.config.response_lag;
+        let stoppable = self.tasks[..last]
             .iter()
             .enumerate()
             .filter(|(_, t)| t.kind == TaskKind::Pick)
@@ -320,18 +398,34 @@ impl ReactiveBaseline {
                 let offset = position.xy() - from;
                 let along = offset.dot(&heading);
                 let beside = (offset - heading * along).norm();
-                let (keep, corridor) = if current {
-                    (self.config.base_standoff, self.config.base_corridor)
-                } else if self.passes(&offset, &(target.xy() - from)) {
-                    (self.config.platform_clearance, self.config.base_corridor)
+                if !current && !self.passes(&offset, &(target.xy() - from)) {
+                    return self.room_beside(along, beside).map(|room| {
+                        (lag_term * lag_term + 2.0 * deceleration * room).sqrt() - lag_term
+                    });
+                }
+                let keep = if current {
+                    self.config.base_standoff
                 } else {
-                    self.beside_target_standoff.into()
+                    self.config.platform_clearance
                 };
-                (along > 0.0 && beside < corridor).then_some((along - keep).max(0.0))
+                (along > 0.0 && beside < self.config.base_corridor)
+                    .then(|| (2.0 * deceleration * (along - keep).max(0.0)).sqrt())
             })
             .fold(f64::INFINITY, f64::min);
-        let stoppable = (2.0 * self.base_deceleration * room).sqrt();
         v.clamp(-stoppable, stoppable)
+    }
+
+    /// How far the base can drive straight ahead before its footprint (a rectangle) comes
+    /// within `platform_radius + footprint_margin` of a platform `along` ahead of its centre
+    /// and `beside` its heading line (m); `None` when the base passes it by. The swept
+    /// rectangle, not a corridor and a distance along the heading: a platform of a row that the
+    /// base meets at a slant is near the base's front corner, not its front.
+    fn room_beside(&self, along: f64, beside: f64) -> Option<f64> {
+        let [half_length, half_width] = self.half_footprint;
+        let keep = self.config.platform_radius + self.config.footprint_margin;
+        let lateral = (beside - half_width).max(0.0);
+        (along > 0.0 && lateral < keep)
+            .then(|| (along - half_length - (keep * keep - lateral * lateral).sqrt()).max(0.0))
     }
 
     /// Whether the base, to come within `base_standoff` of a goal at `to_goal` (from the base),
@@ -370,6 +464,56 @@ impl ReactiveBaseline {
             .next()
     }
 
+    /// The turn that frees a base held short of its stand-off from the current target (by
+    /// more than `squaring_tolerance`) by an earlier pick platform beside the target (with less
+    /// than `squaring_tolerance` of room), such as
+    /// the next one along a row that the base meets at a slant: its front corner is what comes
+    /// near the platform, and a turn toward the platform's side swings that corner back and
+    /// squares the base's front to the row. The holistic law then drives on.
+    fn squaring_turn(
+        &mut self,
+        base: &BasePose,
+        target: &Vector3<f64>,
+        offset: &[f64; 3],
+    ) -> Option<f64> {
+        let heading = Vector2::new(base.yaw.cos(), base.yaw.sin());
+        let from = Vector2::new(base.x, base.y);
+        let to_target = target.xy() - from;
+        let room = |index: usize| {
+            let to_platform = world_to_odometry(offset, &self.tasks[index].position).xy() - from;
+            let along = to_platform.dot(&heading);
+            let beside = (to_platform - heading * along).norm();
+            (to_platform, self.room_beside(along, beside))
+        };
+        // A turn once begun goes on until the platform is `squaring_release` clear: the holistic
+        // law's facing term, turning the base back at once, held it there for minutes.
+        let held = self.squaring.filter(|&(index, _)| {
+            room(index)
+                .1
+                .is_some_and(|r| r < self.config.squaring_release)
+        });
+        if held.is_some() {
+            return held.map(|(_, omega)| omega);
+        }
+        if to_target.dot(&heading) < self.config.base_standoff + self.config.squaring_tolerance {
+            return None;
+        }
+        let Some((index, to_platform)) = (0..self.task.min(self.tasks.len()))
+            .filter(|&index| self.tasks[index].kind == TaskKind::Pick)
+            .map(|index| (index, room(index)))
+            .filter(|(_, (to_platform, _))| !self.passes(to_platform, &to_target))
+            .find(|(_, (_, room))| room.is_some_and(|room| room < self.config.squaring_tolerance))
+            .map(|(index, (to_platform, _))| (index, to_platform))
+        else {
+            self.squaring = None;
+            return None;
+        };
+        let left = heading.perp(&to_platform) >= 0.0;
+        let omega = self.config.escape_turn_rate * if left { 1.0 } else { -1.0 };
+        self.squaring = Some((index, omega));
+        Some(omega)
+    }
+
     /// One control cycle.
     pub fn step(&mut self, input: &ReactiveInput<'_>) -> ReactiveOutput {
         let tool = self.robot.tool_pose(&input.base, input.arm_q);
@@ -390,7 +534,21 @@ impl ReactiveBaseline {
             .abs()
             .sum();
         let arrived = stage_error < self.config.holistic.arrival_error;
-        let rotation = top_down(tool_yaw(&tool.rotation));
+        let reaching = matches!(self.stage, ReactiveStage::Approach | ReactiveStage::Descend);
+        if self.stalled(input.t, stage_error) && reaching {
+            self.give_up(input.t);
+            return self.step(input);
+        }
+        let current_yaw = tool_yaw(&tool.rotation);
+        let yaw = match task.kind {
+            TaskKind::Pick => symmetric_yaw(
+                self.config.object_yaw + input.odometry_offset[2],
+                self.config.yaw_symmetry,
+                current_yaw,
+            ),
+            _ => current_yaw,
+        };
+        let rotation = top_down(yaw);
         let target = Isometry3::from_parts(Translation3::from(goal), rotation);
         let out = self.controller.step(&HolisticInput {
             base: input.base,
@@ -411,7 +569,10 @@ impl ReactiveBaseline {
         // sweeps the tool across the platform.
         let escaping = self.stage == ReactiveStage::Approach && out.base.v > 0.0;
         let escape = escaping
-            .then(|| self.escape_turn(&input.base, &goal, offset))
+            .then(|| {
+                self.escape_turn(&input.base, &goal, offset)
+                    .or_else(|| self.squaring_turn(&input.base, &input.target.position, offset))
+            })
             .flatten();
         let base = match escape {
             Some(omega) => BaseVelocity { v: 0.0, omega },
@@ -655,10 +816,154 @@ mod tests {
         assert_eq!(baseline.escape_turn(&base, &cube, &[0.0; 3]), None);
         let v = baseline.clamp_forward_speed(&base, &cube, &[0.0; 3], 0.3);
         assert!(v > 0.05, "v = {v}");
-        // Inside its footprint clearance (0.67 m ahead for Frankie) the platform does stop the
-        // base, 1 cm short of the stand-off from the cube.
+        // Nearer, the cap allows for the base's response lag; where the footprint would come
+        // within the platform's radius and margin (0.60 m ahead for Frankie), it stops the base.
         let closer = BasePose { x: 1.29, ..base };
         let v = baseline.clamp_forward_speed(&closer, &cube, &[0.0; 3], 0.3);
-        assert_eq!(v, 0.0);
+        assert!(v < 0.15, "v = {v}");
+        let touching = BasePose { x: 1.35, ..base };
+        let v = baseline.clamp_forward_speed(&touching, &cube, &[0.0; 3], 0.3);
+        assert!(v.abs() < 1e-9, "v = {v}");
+    }
+
+    #[test]
+    fn a_pick_whose_reach_stalls_is_given_up_with_its_place() {
+        let mut baseline = exp1_baseline();
+        let base = BasePose::default();
+        let cube = Vector3::new(2.0, 0.0, 0.45);
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        let timeout = baseline.config.stall_timeout;
+        let at = |baseline: &mut ReactiveBaseline, t: f64| {
+            baseline.step(&ReactiveInput {
+                t,
+                base,
+                arm_q: &arm_q,
+                gripper_opening: 0.08,
+                target: TargetEstimate::fixed(cube),
+                odometry_offset: [0.0; 3],
+            })
+        };
+        // The robot does not move between the cycles: the tool comes no nearer.
+        let out = at(&mut baseline, 0.0);
+        assert_eq!((out.task_index, baseline.failed_tasks()), (0, 0));
+        let out = at(&mut baseline, timeout - 0.1);
+        assert_eq!((out.task_index, baseline.failed_tasks()), (0, 0));
+        let out = at(&mut baseline, timeout + 0.1);
+        assert_eq!(out.stage, ReactiveStage::Complete);
+        assert_eq!((out.task_index, baseline.failed_tasks()), (2, 2));
+        assert_eq!(out.gripper, GripperCommand::Open);
+    }
+
+    #[test]
+    fn progress_restarts_the_stall_clock() {
+        let mut baseline = exp1_baseline();
+        let timeout = baseline.config.stall_timeout;
+        assert!(!baseline.stalled(0.0, 1.0));
+        // 1.5 cm nearer is not progress, 2.5 cm is.
+        assert!(!baseline.stalled(0.5 * timeout, 0.985));
+        assert!(!baseline.stalled(0.9 * timeout, 0.975));
+        assert!(!baseline.stalled(1.5 * timeout, 0.975));
+        assert!(baseline.stalled(2.0 * timeout, 0.975));
+    }
+
+    #[test]
+    fn a_platform_at_the_front_corner_leaves_the_room_of_the_swept_footprint() {
+        let baseline = exp1_baseline();
+        let [half_length, half_width] = baseline.half_footprint;
+        let keep = baseline.config.platform_radius + baseline.config.footprint_margin;
+        // Straight ahead: the front edge's distance less the kept radius.
+        let room = baseline.room_beside(1.0, 0.0).unwrap();
+        assert!((room - (1.0 - half_length - keep)).abs() < 1e-12);
+        // Beside the corner, 10 cm out: the circle meets the corner later.
+        let room = baseline.room_beside(1.0, half_width + 0.1).unwrap();
+        let expected = 1.0 - half_length - (keep * keep - 0.01_f64).sqrt();
+        assert!((room - expected).abs() < 1e-12);
+        // Out of the swept strip, or behind: never in the way.
+        assert_eq!(baseline.room_beside(1.0, half_width + keep + 0.01), None);
+        assert_eq!(baseline.room_beside(-0.5, 0.0), None);
+    }
+
+    #[test]
+    fn a_base_held_at_a_slant_by_a_rows_platform_turns_toward_it_until_clear() {
+        // Two cubes of a row along y; the first is picked and placed. The base meets the row
+        // at a slant, heading for the second with the first's platform at its front corner.
+        let pick = |y: f64| MissionTask {
+            kind: TaskKind::Pick,
+            item: 0,
+            position: Vector3::new(0.0, y, 0.45),
+        };
+        let place = MissionTask {
+            kind: TaskKind::Place,
+            item: 0,
+            position: Vector3::new(3.0, 0.0, 0.35),
+        };
+        let tasks = vec![pick(0.42), place, pick(0.0)];
+        let mut baseline = ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks);
+        baseline.task = 2;
+        let cube = Vector3::new(0.0, 0.0, 0.45);
+        let yaw = -2.5_f64;
+        let distance = 0.85;
+        let base = BasePose {
+            x: -distance * yaw.cos(),
+            y: -distance * yaw.sin(),
+            yaw,
+        };
+        let v = baseline.clamp_forward_speed(&base, &cube, &[0.0; 3], 0.3);
+        assert!(v < 0.1, "v = {v}");
+        // The platform is on the right: the turn is clockwise.
+        let omega = baseline.squaring_turn(&base, &cube, &[0.0; 3]);
+        assert_eq!(omega, Some(-baseline.config.escape_turn_rate));
+        // Turned part of the way (room above the trigger, below the release), it goes on.
+        let turned = BasePose {
+            yaw: yaw - 0.1,
+            ..base
+        };
+        assert_eq!(
+            baseline.squaring_turn(&turned, &cube, &[0.0; 3]),
+            Some(-baseline.config.escape_turn_rate)
+        );
+        // Square to the row the platform is clear, and the holistic law drives on.
+        let square = BasePose {
+            yaw: std::f64::consts::PI,
+            x: distance,
+            y: 0.0,
+        };
+        assert_eq!(baseline.squaring_turn(&square, &cube, &[0.0; 3]), None);
+        assert!(baseline.clamp_forward_speed(&square, &cube, &[0.0; 3], 0.3) > 0.1);
+    }
+
+    #[test]
+    fn a_pick_turns_the_gripper_square_to_the_cube() {
+        // The base heads 0.5 rad off the world axes; the cubes stand square to them.
+        let mut baseline = exp1_baseline();
+        let base = BasePose {
+            x: 0.0,
+            y: 0.0,
+            yaw: 0.5,
+        };
+        let arm_q = baseline.robot.config.ready_pose.clone();
+        let before = baseline.robot.tool_pose(&base, &arm_q);
+        let out = baseline.step(&ReactiveInput {
+            t: 0.0,
+            base,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate::fixed(before.translation.vector + Vector3::new(0.0, 0.0, -0.2)),
+            odometry_offset: [0.0; 3],
+        });
+        // The commanded motion turns the tool about z toward the nearest multiple of π/2.
+        let mut q = arm_q.clone();
+        for (q, qd) in q.iter_mut().zip(&out.arm_qd) {
+            *q += qd * 0.05;
+        }
+        let after = baseline.robot.tool_pose(&base, &q);
+        let quarter = std::f64::consts::FRAC_PI_2;
+        let off = |yaw: f64| (yaw - quarter * (yaw / quarter).round()).abs();
+        assert!(
+            off(tool_yaw(&after.rotation)) < off(tool_yaw(&before.rotation)),
+            "{} -> {}",
+            tool_yaw(&before.rotation),
+            tool_yaw(&after.rotation)
+        );
     }
 }

@@ -164,6 +164,26 @@ impl MissionConfig {
     }
 }
 
+/// Marks `tasks[current]` given up in `failed`, with the places of the same object when it is
+/// a pick (there is nothing to place), and returns the index of the next task not given up
+/// (the task count when none is left).
+pub fn give_up_task(tasks: &[MissionTask], failed: &mut [bool], current: usize) -> usize {
+    let Some(task) = tasks.get(current) else {
+        return current;
+    };
+    failed[current] = true;
+    if task.kind == TaskKind::Pick {
+        for (later, failed) in tasks.iter().zip(failed.iter_mut()).skip(current + 1) {
+            if later.kind == TaskKind::Place && later.item == task.item {
+                *failed = true;
+            }
+        }
+    }
+    (current + 1..tasks.len())
+        .find(|&index| !failed[index])
+        .unwrap_or(tasks.len())
+}
+
 /// The mission state machine.
 #[derive(Debug, Clone)]
 pub struct Mission {
@@ -207,29 +227,12 @@ impl Mission {
 
     /// Gives the current task up (its target could not be reached: the base gave it up after
     /// its passes, see `crate::base_controller`) and goes on with the next task that does not
-    /// depend on it: a pick's places of the same object are given up with it (there is nothing
-    /// to place). Returns whether a task was given up.
+    /// depend on it ([`give_up_task`]). Returns whether a task was given up.
     pub fn give_up(&mut self) -> bool {
-        let Some(task) = self.current_task().copied() else {
+        if self.current_task().is_none() {
             return false;
-        };
-        self.failed[self.current] = true;
-        if task.kind == TaskKind::Pick {
-            for (later, failed) in self
-                .tasks
-                .iter()
-                .zip(&mut self.failed)
-                .skip(self.current + 1)
-            {
-                if later.kind == TaskKind::Place && later.item == task.item {
-                    *failed = true;
-                }
-            }
         }
-        self.current += 1;
-        while self.current < self.tasks.len() && self.failed[self.current] {
-            self.current += 1;
-        }
+        self.current = give_up_task(&self.tasks, &mut self.failed, self.current);
         self.phase = if self.current >= self.tasks.len() {
             Phase::Complete
         } else {

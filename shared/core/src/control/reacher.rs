@@ -262,6 +262,17 @@ pub fn top_down(yaw: f64) -> UnitQuaternion<f64> {
         * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
 }
 
+/// The gripper yaw that grasps an object standing at `object_yaw` with the given `symmetry`
+/// about the vertical (rad; π/2 for a cube, 0 for none) and turns the gripper least from
+/// `current_yaw`: the object's yaw plus the multiple of the symmetry closest to the current yaw.
+pub fn symmetric_yaw(object_yaw: f64, symmetry: f64, current_yaw: f64) -> f64 {
+    if symmetry > 0.0 {
+        object_yaw + (wrap_angle(current_yaw - object_yaw) / symmetry).round() * symmetry
+    } else {
+        object_yaw
+    }
+}
+
 /// The yaw of a tool orientation: the heading of its x axis projected on the horizontal plane.
 pub fn tool_yaw(rotation: &UnitQuaternion<f64>) -> f64 {
     let x = rotation * Vector3::x();
@@ -383,11 +394,7 @@ impl Reacher {
             .min(MAX_DURATION);
         let current_yaw = tool_yaw(&input.tool.pose.rotation);
         let goal_yaw = match input.target_yaw {
-            Some(yaw) if config.yaw_symmetry > 0.0 => {
-                let symmetry = config.yaw_symmetry;
-                yaw + (wrap_angle(current_yaw - yaw) / symmetry).round() * symmetry
-            }
-            Some(yaw) => yaw,
+            Some(yaw) => symmetric_yaw(yaw, config.yaw_symmetry, current_yaw),
             None => input.range_entry_pose.yaw + tool_yaw(&self.ready_tool.rotation),
         };
         let goal_rotation = top_down(goal_yaw);
