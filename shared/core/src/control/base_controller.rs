@@ -870,9 +870,10 @@ impl BaseController {
         } else {
             &self.current
         };
-        // The direction of the turn is kept while the block lasts: a route point straight
-        // ahead, through what blocks the way, would otherwise leave the base facing it for
-        // good; then it turns away from the nearest known target.
+        // The direction of the turn is kept while the block lasts (reversed below when the
+        // command check refuses it): a route point straight ahead, through what blocks the way,
+        // would otherwise leave the base facing it for good; then it turns away from the
+        // nearest known target.
         let blocked = driving.blocked && !matches!(route, Route::Line(_));
         let (speed, wanted_omega) = if blocked {
             let offset = point - Vector2::new(b.x, b.y);
@@ -905,7 +906,16 @@ impl BaseController {
             self.blocked_turn = None;
             (speed, pursue(b, point, speed))
         };
-        let (speed, wanted_omega) = self.guard(b, speed, wanted_omega, &obstacles);
+        let (speed, wanted_omega) = {
+            let (speed, guarded) = self.guard(b, speed, wanted_omega, &obstacles);
+            // A blocked base whose turn the check refuses turns the other way round: kept, the
+            // refused turn and the check's nearest clear one, the other way, alternated from
+            // cycle to cycle, and the base stood wedged beside Exp 2's row (seed 28, 770 s).
+            if blocked && guarded * wanted_omega <= 0.0 {
+                self.blocked_turn = self.blocked_turn.map(|turn| -turn);
+            }
+            (speed, guarded)
+        };
 
         let max_change = self
             .config
