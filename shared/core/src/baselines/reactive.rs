@@ -26,8 +26,10 @@
 //!   cubes approached from the container), and they knock it off.
 //! - **Base stand-off.** The base does not drive closer than `base_standoff` to the target
 //!   (the holistic law alone would run it into the platform): its forward speed toward the
-//!   target is capped at the speed from which it can still stop there. Earlier pick platforms
-//!   (which the base leaves after the grasp) only keep it `platform_clearance` away. The cap cuts
+//!   target is capped at the speed from which it can still stop there. The stands of earlier
+//!   targets (pick platforms, containers, button pedestals, which the base leaves after the
+//!   task) only keep it `platform_clearance` away; every target counts, not picks alone: a base
+//!   leaving a container toward a button beyond it drove into the container. The cap cuts
 //!   the forward speed alone: the turn rate and the arm keep their command, so the holistic law
 //!   can still turn the base away (scaling the whole command to zero froze the robot at a
 //!   platform it had to leave). When an earlier platform blocks the way, the base turns in place
@@ -70,7 +72,7 @@ pub struct ReactiveConfig {
     /// The fingers start closing once the tool-frame L1 error to the grasp point (without the
     /// lead) is below this, m. 10 mm keeps the tool point inside the height window and the cube
     /// within the 15 mm lateral tolerance with room for perception and odometry error; the
-    /// holistic arrival threshold (20 mm) does not.
+    /// holistic arrival threshold (20 mm) does not. A push on a button ends within it too.
     pub grasp_error: f64,
     /// Height of the waypoint above the grasp point after closing, m.
     pub lift_height: f64,
@@ -82,13 +84,16 @@ pub struct ReactiveConfig {
     pub closing_timeout: f64,
     /// Wait after opening before the task counts as done, s.
     pub opening_time: f64,
-    /// How far below the button top to push, m.
+    /// How far below the button top the tool point aims, m. The push ends within `grasp_error`
+    /// of that point, so 20 mm pushes the cap at least 10 mm (the scenarios' switching travel)
+    /// with the fingertips 5 mm past the tool point; ending at the holistic arrival (20 mm L1)
+    /// with a 10 mm aim left the button unpressed.
     pub press_depth: f64,
     /// Closest the base centre may drive toward the current target horizontally, m. The
     /// holistic law has no obstacle model and would drive the base into the platform; inside
     /// this distance its forward speed toward the target is clamped to zero and the arm reaches.
     pub base_standoff: f64,
-    /// Closest the base centre may drive toward an earlier pick platform (one it is leaving),
+    /// Closest the base centre may drive toward an earlier target's stand (one it is leaving),
     /// measured along its heading, m. The base may have to turn in place there to get out of
     /// the platform's way, so this is the radius its footprint sweeps when turning (Frankie's
     /// 0.68 × 0.47 m footprint: 0.41 m half-diagonal) plus a platform's half-diagonal (0.21 m
@@ -149,7 +154,7 @@ impl Default for ReactiveConfig {
             closed_opening: 0.032,
             closing_timeout: 1.0,
             opening_time: 0.5,
-            press_depth: 0.01,
+            press_depth: 0.02,
             base_standoff: 0.7,
             platform_clearance: 0.75,
             platform_radius: 0.21,
@@ -363,7 +368,7 @@ impl ReactiveBaseline {
         }
     }
 
-    /// Caps the forward speed so the base can still stop short of any pick platform that lies
+    /// Caps the forward speed so the base can still stop short of any target's stand that lies
     /// ahead in its path (within `base_corridor` of its heading line): `base_standoff` short of
     /// the current target where it is seen (`target`: the known position can be metres of drift
     /// or a neighbour's spacing off, and a stand-off from it can hold the base out of the arm's
@@ -387,7 +392,6 @@ impl ReactiveBaseline {
         let stoppable = self.tasks[..last]
             .iter()
             .enumerate()
-            .filter(|(_, t)| t.kind == TaskKind::Pick)
             .filter_map(|(index, t)| {
                 let current = index == self.task;
                 let position = if current {
@@ -436,7 +440,7 @@ impl ReactiveBaseline {
         to_goal.norm() > to_platform.norm() + self.config.base_standoff
     }
 
-    /// The turn that takes the base out of an earlier pick platform's way, when one blocks it:
+    /// The turn that takes the base out of an earlier target's stand's way, when one blocks it:
     /// the platform lies in the strip ahead within `platform_clearance`, the base would have to
     /// pass it to come within `base_standoff` of `goal` (a platform beside the goal, such as
     /// the next one along a row, is not in the way), and the turn is toward the side of `goal`
@@ -447,7 +451,6 @@ impl ReactiveBaseline {
         let to_goal = goal.xy() - from;
         self.tasks[..self.task.min(self.tasks.len())]
             .iter()
-            .filter(|t| t.kind == TaskKind::Pick)
             .map(|t| world_to_odometry(offset, &t.position).xy() - from)
             .filter(|offset| {
                 let along = offset.dot(&heading);
@@ -465,7 +468,7 @@ impl ReactiveBaseline {
     }
 
     /// The turn that frees a base held short of its stand-off from the current target (by
-    /// more than `squaring_tolerance`) by an earlier pick platform beside the target (with less
+    /// more than `squaring_tolerance`) by an earlier target's stand beside the target (with less
     /// than `squaring_tolerance` of room), such as
     /// the next one along a row that the base meets at a slant: its front corner is what comes
     /// near the platform, and a turn toward the platform's side swings that corner back and
@@ -499,7 +502,6 @@ impl ReactiveBaseline {
             return None;
         }
         let Some((index, to_platform)) = (0..self.task.min(self.tasks.len()))
-            .filter(|&index| self.tasks[index].kind == TaskKind::Pick)
             .map(|index| (index, room(index)))
             .filter(|(_, (to_platform, _))| !self.passes(to_platform, &to_target))
             .find(|(_, (_, room))| room.is_some_and(|room| room < self.config.squaring_tolerance))
@@ -600,7 +602,9 @@ impl ReactiveBaseline {
                 self.gripper = GripperCommand::Close;
                 self.enter(ReactiveStage::Gripper, input.t);
             }
-            (TaskKind::PressButton, ReactiveStage::Descend) if arrived => {
+            (TaskKind::PressButton, ReactiveStage::Descend)
+                if stage_error < self.config.grasp_error =>
+            {
                 self.enter(ReactiveStage::Lift, input.t);
             }
             (TaskKind::Pick, ReactiveStage::Gripper)
@@ -965,5 +969,34 @@ mod tests {
             tool_yaw(&before.rotation),
             tool_yaw(&after.rotation)
         );
+    }
+
+    #[test]
+    fn a_container_left_behind_toward_a_button_beyond_it_is_kept_clear_of() {
+        // The button scenario: after the drop the base faces the container, 0.74 m ahead, with
+        // the button 2.8 m beyond it.
+        let task = |kind: TaskKind, x: f64, y: f64, z: f64| MissionTask {
+            kind,
+            item: 0,
+            position: Vector3::new(x, y, z),
+        };
+        let tasks = vec![
+            task(TaskKind::Pick, 2.0, 0.0, 0.45),
+            task(TaskKind::Place, 4.0, 1.0, 0.35),
+            task(TaskKind::PressButton, 6.0, 0.0, 0.5),
+        ];
+        let mut baseline = ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks);
+        baseline.task = 2;
+        let base = BasePose {
+            x: 3.26,
+            y: 1.0,
+            yaw: 0.0,
+        };
+        let button = Vector3::new(6.0, 0.0, 0.5);
+        let v = baseline.clamp_forward_speed(&base, &button, &[0.0; 3], 0.3);
+        assert!(v.abs() < 1e-9, "v = {v}");
+        // The button is to the right of the container: the base turns right, out of its way.
+        let omega = baseline.escape_turn(&base, &button, &[0.0; 3]);
+        assert_eq!(omega, Some(-baseline.config.escape_turn_rate));
     }
 }
