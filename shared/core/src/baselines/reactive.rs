@@ -49,7 +49,7 @@ use serde::Deserialize;
 use crate::holistic::{HolisticConfig, HolisticController, HolisticInput};
 use crate::kinematics::BasePose;
 use crate::localization::world_to_odometry;
-use crate::mission::{MissionTask, TaskKind, give_up_task};
+use crate::mission::{MissionTask, TaskKind, give_up_task, next_open_task};
 use crate::reacher::{symmetric_yaw, tool_yaw, top_down};
 use crate::resolver::ResolveStatus;
 use crate::robot::Robot;
@@ -326,9 +326,7 @@ impl ReactiveBaseline {
 
     /// Finishes the current task.
     fn next_task(&mut self, t: f64) {
-        self.task = (self.task + 1..self.tasks.len())
-            .find(|&index| !self.failed[index])
-            .unwrap_or(self.tasks.len());
+        self.task = next_open_task(&self.failed, self.task + 1);
         self.go_on(t);
     }
 
@@ -400,8 +398,7 @@ impl ReactiveBaseline {
                     world_to_odometry(offset, &t.position)
                 };
                 let offset = position.xy() - from;
-                let along = offset.dot(&heading);
-                let beside = (offset - heading * along).norm();
+                let (along, beside) = along_and_beside(&offset, &heading);
                 if !current && !self.passes(&offset, &(target.xy() - from)) {
                     return self.room_beside(along, beside).map(|room| {
                         (lag_term * lag_term + 2.0 * deceleration * room).sqrt() - lag_term
@@ -453,8 +450,7 @@ impl ReactiveBaseline {
             .iter()
             .map(|t| world_to_odometry(offset, &t.position).xy() - from)
             .filter(|offset| {
-                let along = offset.dot(&heading);
-                let beside = (offset - heading * along).norm();
+                let (along, beside) = along_and_beside(offset, &heading);
                 along > 0.0
                     && along <= self.config.platform_clearance
                     && beside < self.config.base_corridor
@@ -484,8 +480,7 @@ impl ReactiveBaseline {
         let to_target = target.xy() - from;
         let room = |index: usize| {
             let to_platform = world_to_odometry(offset, &self.tasks[index].position).xy() - from;
-            let along = to_platform.dot(&heading);
-            let beside = (to_platform - heading * along).norm();
+            let (along, beside) = along_and_beside(&to_platform, &heading);
             (to_platform, self.room_beside(along, beside))
         };
         // A turn once begun goes on until the platform is `squaring_release` clear: the holistic
@@ -651,6 +646,13 @@ impl ReactiveBaseline {
             tool_to_target,
         }
     }
+}
+
+/// How far `offset` (from the base) lies ahead along the unit `heading`, and how far beside the
+/// heading line, m.
+fn along_and_beside(offset: &Vector2<f64>, heading: &Vector2<f64>) -> (f64, f64) {
+    let along = offset.dot(heading);
+    (along, (offset - heading * along).norm())
 }
 
 #[cfg(test)]

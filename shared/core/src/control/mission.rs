@@ -179,9 +179,15 @@ pub fn give_up_task(tasks: &[MissionTask], failed: &mut [bool], current: usize) 
             }
         }
     }
-    (current + 1..tasks.len())
+    next_open_task(failed, current + 1)
+}
+
+/// The index of the first task from `from` on that is not given up in `failed` (the task count
+/// when none is left).
+pub fn next_open_task(failed: &[bool], from: usize) -> usize {
+    (from..failed.len())
         .find(|&index| !failed[index])
-        .unwrap_or(tasks.len())
+        .unwrap_or(failed.len())
 }
 
 /// The mission state machine.
