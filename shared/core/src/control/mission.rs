@@ -272,9 +272,10 @@ impl Mission {
         self.tasks.get(self.current)
     }
 
-    /// The task after the current one, if any.
+    /// The task after the current one that is not given up, if any.
     pub fn next_task(&self) -> Option<&MissionTask> {
-        self.tasks.get(self.current + 1)
+        self.tasks
+            .get(next_open_task(&self.failed, self.current + 1))
     }
 
     /// Where the base should head after the current target: the next task's target, or a point
@@ -314,7 +315,9 @@ impl Mission {
                 self.phase = Phase::Final;
             }
             Phase::Final if final_progress == TaskProgress::Done => {
-                self.current += 1;
+                // A task given up earlier is skipped: the place of a pick given up with other
+                // tasks between them would otherwise run with nothing in the hand.
+                self.current = next_open_task(&self.failed, self.current + 1);
                 self.phase = if self.current >= self.tasks.len() {
                     Phase::Complete
                 } else {
@@ -413,6 +416,36 @@ mod tests {
         assert!(m.give_up());
         assert_eq!((m.phase(), m.failed_tasks()), (Phase::Complete, 3));
         assert!(!m.give_up());
+    }
+
+    #[test]
+    fn a_place_given_up_with_its_pick_is_skipped_after_the_task_between_them() {
+        let task = |kind, item, x| MissionTask {
+            kind,
+            item,
+            position: Vector3::new(x, 0.0, 0.45),
+        };
+        let mut m = Mission::new(
+            MissionConfig::default(),
+            vec![
+                task(TaskKind::Pick, 0, 2.0),
+                task(TaskKind::PressButton, 1, 3.0),
+                task(TaskKind::Place, 0, 4.0),
+                task(TaskKind::Pick, 2, 5.0),
+            ],
+            Vector3::zeros(),
+        );
+        // The pick is given up: the press is current, and the base is to head on to the last
+        // pick, not to the place given up with the first.
+        assert!(m.give_up());
+        assert_eq!((m.task_index(), m.failed_tasks()), (1, 2));
+        assert_eq!(m.next_task().map(|t| t.item), Some(2));
+        assert_eq!(m.next_waypoint(&Vector3::new(3.0, 0.0, 0.45)).x, 5.0);
+        // The press done, the mission goes on to the last pick, past the place.
+        m.step(0.05, TaskProgress::Active);
+        let s = m.step(0.05, TaskProgress::Done);
+        assert_eq!((s.task_index, s.phase), (3, Phase::Reach));
+        assert!(m.next_task().is_none());
     }
 
     #[test]
