@@ -114,6 +114,11 @@ impl BaseCommandRate {
         self.omega_acceleration
     }
 
+    /// The last target let through (at rest before the first).
+    pub fn last(&self) -> BaseVelocity {
+        self.last
+    }
+
     /// The forward acceleration limit in use, m/s².
     pub fn forward_acceleration(&self) -> f64 {
         self.v_acceleration

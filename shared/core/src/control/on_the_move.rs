@@ -64,6 +64,12 @@ pub struct TwistRateLimit {
     /// Floor of the speed-scaled linear limit, m/s² (0.3), so that a slow or stopped base
     /// still lets the servo move the tool.
     pub min_linear_acceleration: f64,
+    /// Share of the base's forward acceleration that the linear limit gives up while the base
+    /// speeds up or slows down (0.5; 0 turns it off): the arm cancels the base's acceleration
+    /// at the tool only as well as it knows the base's motion, which lags its command, so a
+    /// reach begun as the base speeds up (after a lift, at the start) had the two add up at
+    /// the tool ([`TwistRateLimit::sharing`]).
+    pub base_acceleration_share: f64,
 }
 
 impl Default for TwistRateLimit {
@@ -73,6 +79,7 @@ impl Default for TwistRateLimit {
             angular_acceleration: 4.0,
             linear_acceleration_per_speed: 3.5,
             min_linear_acceleration: 0.3,
+            base_acceleration_share: 0.5,
         }
     }
 }
@@ -96,6 +103,23 @@ impl TwistRateLimit {
     pub fn for_speed(&self, forward_speed: f64) -> Self {
         Self {
             linear_acceleration: self.linear_limit(forward_speed),
+            ..*self
+        }
+    }
+
+    /// These limits with the linear one lowered by `base_acceleration_share` × |`base_acceleration`|
+    /// (the base target's forward acceleration this cycle, m/s²), down to the floor
+    /// `min_linear_acceleration` (or the linear limit itself, if lower). A base acceleration
+    /// that is not finite leaves the limits as they are.
+    pub fn sharing(&self, base_acceleration: f64) -> Self {
+        if !base_acceleration.is_finite() {
+            return *self;
+        }
+        let floor = self.min_linear_acceleration.min(self.linear_acceleration);
+        let lowered =
+            self.linear_acceleration - self.base_acceleration_share * base_acceleration.abs();
+        Self {
+            linear_acceleration: lowered.max(floor),
             ..*self
         }
     }
@@ -234,7 +258,16 @@ impl OnTheMoveConfig {
             ("max_position_error", self.max_position_error),
             ("max_position_error_rate", self.max_position_error_rate),
         ];
-        ModelError::check_positive(file, &rates)
+        ModelError::check_positive(file, &rates)?;
+        let share = self.twist_rate.base_acceleration_share;
+        if !(share.is_finite() && share >= 0.0) {
+            return Err(ModelError::invalid(
+                file,
+                "twist_rate.base_acceleration_share",
+                format!("must be finite and not negative, got {share}"),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -254,6 +287,33 @@ mod config_file_tests {
         let at = limits.for_speed(0.2);
         assert!((at.linear_acceleration - k * 0.2).abs() < 1e-12);
         assert_eq!(at.angular_acceleration, limits.angular_acceleration);
+    }
+
+    #[test]
+    fn the_base_s_acceleration_lowers_the_linear_twist_limit_down_to_its_floor() {
+        let limits = TwistRateLimit::default().for_speed(0.3);
+        let full = limits.linear_acceleration;
+        let share = limits.base_acceleration_share;
+        // Speeding up or slowing down at 0.75 m/s² gives up the same share.
+        for a in [0.75, -0.75] {
+            let lowered = limits.sharing(a).linear_acceleration;
+            assert!((lowered - (full - share * 0.75)).abs() < 1e-12, "{lowered}");
+        }
+        assert_eq!(limits.sharing(0.0), limits);
+        assert_eq!(limits.sharing(f64::NAN), limits);
+        assert_eq!(
+            limits.sharing(1e6).linear_acceleration,
+            limits.min_linear_acceleration
+        );
+        assert_eq!(
+            limits.sharing(1e6).angular_acceleration,
+            limits.angular_acceleration
+        );
+        let off = TwistRateLimit {
+            base_acceleration_share: 0.0,
+            ..limits
+        };
+        assert_eq!(off.sharing(0.75), off);
     }
 
     #[test]

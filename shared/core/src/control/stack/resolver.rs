@@ -352,16 +352,22 @@ impl ResolverCycle {
             TwistSource::Hold => self.holds += 1,
             _ => {}
         }
-        let twist = self
-            .config
-            .twist_rate
-            .for_speed(self.config.base.forward_speed)
-            .apply(&self.last_twist, &twist, self.dt);
-        self.last_twist = twist;
         let base_target = match input.base_target {
             Some((target, age_ns)) if age_ns as f64 * 1e-9 <= self.limits.max_twist_age => target,
             _ => BaseVelocity::default(),
         };
+        // The tool's acceleration budget is shared with the base's: the arm cancels the base's
+        // acceleration at the tool only in part.
+        let previous_base_target = self.base_rate.last();
+        let base_target = self.base_rate.apply(base_target, self.dt);
+        let base_acceleration = (base_target.v - previous_base_target.v) / self.dt;
+        let twist = self
+            .config
+            .twist_rate
+            .for_speed(self.config.base.forward_speed)
+            .sharing(base_acceleration)
+            .apply(&self.last_twist, &twist, self.dt);
+        self.last_twist = twist;
         let correction = slip_correction(
             &self.robot,
             &state.base,
@@ -377,7 +383,7 @@ impl ResolverCycle {
             state.arm_q,
             twist + correction,
             position_error,
-            Some(self.base_rate.apply(base_target, self.dt)),
+            Some(base_target),
         );
         self.last_base_command = resolved.base;
         ResolverCycleOutput {
