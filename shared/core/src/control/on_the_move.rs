@@ -65,10 +65,10 @@ pub struct TwistRateLimit {
     /// still lets the servo move the tool.
     pub min_linear_acceleration: f64,
     /// Share of the base's forward acceleration that the linear limit gives up while the base
-    /// speeds up or slows down (0.5; 0 turns it off): the arm cancels the base's acceleration
-    /// at the tool only as well as it knows the base's motion, which lags its command, so a
-    /// reach begun as the base speeds up (after a lift, at the start) had the two add up at
-    /// the tool ([`TwistRateLimit::sharing`]).
+    /// speeds up (0.5; 0 turns it off): the arm cancels the base's acceleration at the tool
+    /// only as well as it knows the base's motion, which lags its command, so a reach begun as
+    /// the base speeds up (after a lift, at the start) had the two add up at the tool
+    /// ([`TwistRateLimit::sharing`]).
     pub base_acceleration_share: f64,
 }
 
@@ -107,12 +107,16 @@ impl TwistRateLimit {
         }
     }
 
-    /// These limits with the linear one lowered by `base_acceleration_share` × |`base_acceleration`|
-    /// (the base target's forward acceleration this cycle, m/s²), down to the floor
-    /// `min_linear_acceleration` (or the linear limit itself, if lower). A base acceleration
-    /// that is not finite leaves the limits as they are.
-    pub fn sharing(&self, base_acceleration: f64) -> Self {
-        if !base_acceleration.is_finite() {
+    /// These limits with the linear one lowered, while the base speeds up (its forward speed
+    /// `base_speed` and acceleration `base_acceleration`, m/s and m/s², of one sign), by
+    /// `base_acceleration_share` × |`base_acceleration`|, down to the floor
+    /// `min_linear_acceleration` (or the linear limit itself, if lower). Slowing down, the base
+    /// lingers past a target whose grasp, lift or drop the final phase is still servoing, and
+    /// taking from its budget then cost Exp 2 transports. Values that are not finite leave the
+    /// limits as they are.
+    pub fn sharing(&self, base_speed: f64, base_acceleration: f64) -> Self {
+        let speeding_up = base_speed * base_acceleration > 0.0;
+        if !(speeding_up && base_acceleration.is_finite()) {
             return *self;
         }
         let floor = self.min_linear_acceleration.min(self.linear_acceleration);
@@ -290,30 +294,29 @@ mod config_file_tests {
     }
 
     #[test]
-    fn the_base_s_acceleration_lowers_the_linear_twist_limit_down_to_its_floor() {
+    fn the_base_s_speed_up_lowers_the_linear_twist_limit_down_to_its_floor() {
         let limits = TwistRateLimit::default().for_speed(0.3);
         let full = limits.linear_acceleration;
         let share = limits.base_acceleration_share;
-        // Speeding up or slowing down at 0.75 m/s² gives up the same share.
-        for a in [0.75, -0.75] {
-            let lowered = limits.sharing(a).linear_acceleration;
+        // Speeding up at 0.75 m/s², forward or in reverse, gives up the share.
+        for (v, a) in [(0.2, 0.75), (-0.2, -0.75)] {
+            let lowered = limits.sharing(v, a).linear_acceleration;
             assert!((lowered - (full - share * 0.75)).abs() < 1e-12, "{lowered}");
         }
-        assert_eq!(limits.sharing(0.0), limits);
-        assert_eq!(limits.sharing(f64::NAN), limits);
-        assert_eq!(
-            limits.sharing(1e6).linear_acceleration,
-            limits.min_linear_acceleration
-        );
-        assert_eq!(
-            limits.sharing(1e6).angular_acceleration,
-            limits.angular_acceleration
-        );
+        // Slowing down, at rest or at a constant speed, it does not.
+        for (v, a) in [(0.2, -0.75), (-0.2, 0.75), (0.0, 0.75), (0.3, 0.0)] {
+            assert_eq!(limits.sharing(v, a), limits, "{v} {a}");
+        }
+        assert_eq!(limits.sharing(0.2, f64::NAN), limits);
+        assert_eq!(limits.sharing(0.2, f64::INFINITY), limits);
+        let flat_out = limits.sharing(0.2, 1e6);
+        assert_eq!(flat_out.linear_acceleration, limits.min_linear_acceleration);
+        assert_eq!(flat_out.angular_acceleration, limits.angular_acceleration);
         let off = TwistRateLimit {
             base_acceleration_share: 0.0,
             ..limits
         };
-        assert_eq!(off.sharing(0.75), off);
+        assert_eq!(off.sharing(0.2, 0.75), off);
     }
 
     #[test]

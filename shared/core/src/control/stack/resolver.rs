@@ -365,7 +365,7 @@ impl ResolverCycle {
             .config
             .twist_rate
             .for_speed(self.config.base.forward_speed)
-            .sharing(base_acceleration)
+            .sharing(base_target.v, base_acceleration)
             .apply(&self.last_twist, &twist, self.dt);
         self.last_twist = twist;
         let correction = slip_correction(

@@ -343,14 +343,31 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         ResolverCycleConfig::default(),
         0.005,
     );
+    // With the base at rest its linear limit is the one at the run's base speed.
+    input.base_target = Some((BaseVelocity::default(), MS));
     let out = slow.step(&input);
-    // Its linear limit is the one at the run's base speed.
     let defaults = OnTheMoveConfig::default();
     let limit = defaults
         .twist_rate
         .linear_limit(defaults.base.forward_speed)
         * 0.005;
     assert!((out.twist.norm() - limit).abs() < 1e-12, "{}", out.twist);
+    // With the base speeding up from rest, the limit gives up a share of its acceleration,
+    // down to the floor.
+    input.base_target = Some((BaseVelocity { v: 0.3, omega: 0.0 }, MS));
+    let mut speeding = ResolverCycle::new(
+        frankie(),
+        OnTheMoveConfig::default(),
+        ResolverCycleConfig::default(),
+        0.005,
+    );
+    let out = speeding.step(&input);
+    let floor = defaults.twist_rate.min_linear_acceleration * 0.005;
+    assert!(
+        out.twist.norm() < limit - 1e-9 && out.twist.norm() >= floor - 1e-12,
+        "{} vs {limit} (floor {floor})",
+        out.twist
+    );
     // Another controller is active: its twist has not come yet, so the reach twist bridges.
     input.active_controller = Some(2);
     let out = resolver.step(&input);
