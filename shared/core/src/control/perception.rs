@@ -58,6 +58,14 @@ pub struct PerceptionConfig {
     /// plane lies tens of centimetres short of the centre (measured: 0.4 m short from 1.2 m);
     /// close in, the view is from above. Until then the known position is used.
     pub max_container_range: f64,
+    /// Fixes whose ray meets the object's plane at less than this angle are discarded, rad.
+    /// Default 0.17 (about 10°). A camera near the plane's height sees the object side-on: its
+    /// silhouette no longer centres on the ray through its centre, and a pixel of centroid moves
+    /// the fix by range/sin² of this angle. Reaching low beside a row at 0.4 m/s, the palm
+    /// camera came within a centimetre of the cubes' centre plane, and fixes 0.25 m off the
+    /// cube led the arm away from it (Exp 2). From 0.3 m above the plane, views out to 1.7 m
+    /// (beyond `max_range`) pass; at the grasp, straight above, the ray meets it at 45° or more.
+    pub min_ray_angle: f64,
     /// A blob whose fix is farther than this from the prior (the last estimate, predicted to
     /// now, or the hint) is another object and is ignored, m. 0.3 m: a cube moving at 3 cm/s
     /// stays well inside it between fixes, while cubes already placed (metres away) are out.
@@ -127,6 +135,7 @@ impl Default for PerceptionConfig {
             min_velocity_span: 0.1,
             max_range: 1.5,
             max_container_range: 0.7,
+            min_ray_angle: 0.17,
             max_prior_distance: 0.3,
             max_hint_distance: 0.6,
             container_confirmations: 3,
@@ -162,6 +171,16 @@ impl PerceptionConfig {
             ("perception.max_blob_growth", self.max_blob_growth),
         ];
         ModelError::check_positive(file, &positive)?;
+        if !(0.0..std::f64::consts::FRAC_PI_2).contains(&self.min_ray_angle) {
+            return Err(ModelError::invalid(
+                file,
+                "perception.min_ray_angle",
+                format!(
+                    "must be at least 0 and below π/2 rad, got {}",
+                    self.min_ray_angle
+                ),
+            ));
+        }
         if self.max_blob_growth <= 1.0 {
             return Err(ModelError::invalid(
                 file,
@@ -726,7 +745,8 @@ impl Perception {
         self.calibration.model.project(&local.coords).is_some()
     }
 
-    /// Intersects the calibrated ray of `pixel` with the plane `z = height` (world).
+    /// Intersects the calibrated ray of `pixel` with the plane `z = height` (world), if the ray
+    /// meets it at `min_ray_angle` or more and within `max_range`.
     fn intersect(
         &self,
         pixel: Vector2<f64>,
@@ -738,7 +758,8 @@ impl Perception {
         let world_from_camera = tool_pose * self.calibration.tool_from_camera;
         let origin = world_from_camera.translation.vector;
         let direction = world_from_camera.rotation * ray.into_inner();
-        if direction.z.abs() < 1e-9 {
+        // `direction` is a unit vector: its z is the sine of its angle to the plane.
+        if direction.z.abs() < self.config.min_ray_angle.sin().max(1e-9) {
             return None;
         }
         let distance = (height - origin.z) / direction.z;
@@ -893,6 +914,40 @@ mod tests {
             "{estimate:?}"
         );
         assert!(estimate.position.z.abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_ray_grazing_the_object_s_plane_gives_no_fix() {
+        // The camera 5 cm above the plane: a square 84° off the optical axis lies 0.5 m away,
+        // within max_range, but its ray meets the plane at 6°; one 60° off meets it at 30°.
+        let f = calibration().model.fx;
+        let off_axis = |theta: f64| (159 + (theta * f).round() as usize, 119);
+        for (theta, seen) in [(84f64.to_radians(), false), (60f64.to_radians(), true)] {
+            let image = image_with_squares(&[off_axis(theta)], 2);
+            let mut perception = Perception::new(PerceptionConfig::default(), calibration());
+            let estimate = perception.step(&PerceptionInput {
+                object_height: 0.45,
+                ..input(&image, 0.0)
+            });
+            assert_eq!(estimate.valid, seen, "{theta} rad: {estimate:?}");
+            if seen {
+                let range = (estimate.position - Vector3::new(0.0, 0.0, 0.5)).norm();
+                assert!((range - 0.05 / theta.cos()).abs() < 0.01, "{range}");
+            }
+            // With the gate off, the grazing square gives its fix.
+            let mut ungated = Perception::new(
+                PerceptionConfig {
+                    min_ray_angle: 0.0,
+                    ..PerceptionConfig::default()
+                },
+                calibration(),
+            );
+            let estimate = ungated.step(&PerceptionInput {
+                object_height: 0.45,
+                ..input(&image, 0.0)
+            });
+            assert!(estimate.valid, "{theta} rad ungated: {estimate:?}");
+        }
     }
 
     #[test]
