@@ -364,6 +364,14 @@ mod config_file_tests {
             ("[perception]\nmin_pixels = 0\n", "perception.min_pixels"),
             ("[perception]\nmax_range = -1.0\n", "perception.max_range"),
             (
+                "[perception]\nmin_ray_angle = 1.6\n",
+                "perception.min_ray_angle",
+            ),
+            (
+                "[perception]\nmin_ray_angle = -0.1\n",
+                "perception.min_ray_angle",
+            ),
+            (
                 "[perception]\nmin_velocity_span = 2.0\n",
                 "perception.min_velocity_span",
             ),
