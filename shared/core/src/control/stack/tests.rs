@@ -336,16 +336,18 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
         );
     }
     assert!((out.tool_to_target - (robot_tool_distance(&q, &mission))).abs() < 1e-12);
-    // The twist rate limit applies to whatever is chosen.
-    let mut slow = ResolverCycle::new(
-        frankie(),
-        OnTheMoveConfig::default(),
-        ResolverCycleConfig::default(),
-        0.005,
-    );
+    // The twist rate limit (the default one) applies to whatever is chosen.
+    let rate_limited = || {
+        ResolverCycle::new(
+            frankie(),
+            OnTheMoveConfig::default(),
+            ResolverCycleConfig::default(),
+            0.005,
+        )
+    };
     // With the base at rest its linear limit is the one at the run's base speed.
     input.base_target = Some((BaseVelocity::default(), MS));
-    let out = slow.step(&input);
+    let out = rate_limited().step(&input);
     let defaults = OnTheMoveConfig::default();
     let limit = defaults
         .twist_rate
@@ -355,13 +357,7 @@ fn resolver_picks_the_active_phase_falls_back_in_hand_overs_and_stops_on_stale_i
     // With the base speeding up from rest, the limit gives up a share of its acceleration,
     // down to the floor.
     input.base_target = Some((BaseVelocity { v: 0.3, omega: 0.0 }, MS));
-    let mut speeding = ResolverCycle::new(
-        frankie(),
-        OnTheMoveConfig::default(),
-        ResolverCycleConfig::default(),
-        0.005,
-    );
-    let out = speeding.step(&input);
+    let out = rate_limited().step(&input);
     let floor = defaults.twist_rate.min_linear_acceleration * 0.005;
     assert!(
         out.twist.norm() < limit - 1e-9 && out.twist.norm() >= floor - 1e-12,
