@@ -315,6 +315,7 @@ fn trial_result(truth: Option<&SimTruth>, failure: Option<String>, wall_s: f64) 
             sim_time_s: 0.0,
             wall_time_s: wall_s,
             round_trips_s: Vec::new(),
+            mishaps: Vec::new(),
         };
     };
     let outcome = t.outcome().unwrap_or(SimOutcome::Running);
@@ -353,6 +354,7 @@ fn trial_result(truth: Option<&SimTruth>, failure: Option<String>, wall_s: f64) 
         sim_time_s: t.sim_time,
         wall_time_s: wall_s,
         round_trips_s,
+        mishaps: Vec::new(),
     }
 }
 

@@ -115,6 +115,33 @@ pub struct TrialResult {
     pub wall_time_s: f64,
     /// Round-trip time per pick-and-place cycle, s (one entry per completed drop).
     pub round_trips_s: Vec<f64>,
+    /// Every failure as it happened, first to last (in-process trials; a deployed run's
+    /// simulator reports only the first, in `failure`).
+    pub mishaps: Vec<MishapRecord>,
+}
+
+/// One failure of a trial: when, why, which object and how.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MishapRecord {
+    /// Simulated time, s.
+    pub time_s: f64,
+    /// Why, as in [`TrialResult::failure`].
+    pub reason: String,
+    /// Index of the object concerned in the scenario's `[[objects]]`, if one was.
+    pub object: Option<usize>,
+    /// How, for a knock-off: the gripper part and the closure's state; empty otherwise.
+    pub detail: String,
+}
+
+impl From<&crate::world::Mishap> for MishapRecord {
+    fn from(mishap: &crate::world::Mishap) -> Self {
+        Self {
+            time_s: mishap.time,
+            reason: mishap.reason.as_str().to_string(),
+            object: mishap.object,
+            detail: mishap.detail.to_string(),
+        }
+    }
 }
 
 /// A top-down record of one trial, for the trajectory plot: world x, y of the base, the end
@@ -525,6 +552,7 @@ mod tests {
             sim_time_s: t,
             wall_time_s: 0.1,
             round_trips_s: vec![t],
+            mishaps: Vec::new(),
         }
     }
 

@@ -98,6 +98,18 @@ pub enum GraspMiss {
     Yaw,
 }
 
+impl GraspMiss {
+    /// How a closing finger knocked off a cube that left the grasp window this way.
+    pub fn knock_detail(self) -> &'static str {
+        match self {
+            Self::Lateral => "finger, closing, cube out of the grasp window: lateral",
+            Self::NotBetweenFingers => "finger, closing, cube out of the grasp window: not between",
+            Self::Height => "finger, closing, cube out of the grasp window: height",
+            Self::Yaw => "finger, closing, cube out of the grasp window: yaw",
+        }
+    }
+}
+
 /// Whether a cube of edge `cube_size` at `cube` is in the grasp window at `opening`.
 pub fn check_window(
     cube: &CubeInTool,

@@ -24,4 +24,6 @@ pub mod trial_camera;
 pub mod world;
 
 pub use scenario::{Motion, Noise, Scenario, ScenarioButton, ScenarioObject, scenario_path};
-pub use world::{FailureReason, HardwareCommand, Outcome, Sensors, Truth, World, WorldConfig};
+pub use world::{
+    FailureReason, HardwareCommand, Mishap, Outcome, Sensors, Truth, World, WorldConfig,
+};

@@ -421,6 +421,7 @@ fn trial_result(sim: &SimWorld, wall_start: Instant) -> TrialResult {
         sim_time_s: sim_time,
         wall_time_s: wall_start.elapsed().as_secs_f64(),
         round_trips_s,
+        mishaps: sim.world().mishaps().iter().map(Into::into).collect(),
     }
 }
 
@@ -637,6 +638,7 @@ pub fn run_trial(
                     sim_time_s: 0.0,
                     wall_time_s: wall_start.elapsed().as_secs_f64(),
                     round_trips_s: Vec::new(),
+                    mishaps: Vec::new(),
                 };
                 return Ok((result, None));
             }

@@ -29,7 +29,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::Deserialize;
 
 use crate::geometry::OrientedBox;
-use crate::grasp::{self, Contact, CubeInTool, GraspConfig};
+use crate::grasp::{self, Contact, CubeInTool, GraspConfig, GraspMiss};
 use crate::gripper::{Gripper, GripperConfig};
 use crate::objects::{
     ButtonTruth, CubeMover, Layout, ObjectConfig, ObjectState, ObjectTruth, resting_pose,
@@ -223,13 +223,32 @@ struct Held {
     width: f64,
 }
 
+/// One failure as it happened: when, why, which object and how (the trial's result keeps them
+/// all, so a run that lost several objects shows each).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mishap {
+    /// Simulated time, s.
+    pub time: f64,
+    /// What happened.
+    pub reason: FailureReason,
+    /// Index of the object concerned (scenario order), if one was.
+    pub object: Option<usize>,
+    /// How: for a knock-off, the gripper part and the closure's state ("palm", "finger",
+    /// "finger, closing, out of the grasp window: height", ...); empty otherwise.
+    pub detail: &'static str,
+}
+
 /// A closure of the gripper in progress, tracked against the grasp window.
 #[derive(Debug, Clone, Copy)]
 struct Closure {
     /// The cube that has been in the grasp window since the closure began.
     candidate: Option<usize>,
-    /// Whether a free cube was near the tool point when the closure began.
-    attempted: bool,
+    /// The free cube nearest the tool point when the closure began, if one was within the
+    /// attempt distance (the closure is then a grasp attempt).
+    nearest: Option<usize>,
+    /// Why the candidate left the grasp window, when it did (or why the nearest cube was out of
+    /// it when the closure began, when no cube was in it).
+    lost: Option<GraspMiss>,
 }
 
 /// Per-trial error factors, drawn once from the seed.
@@ -266,6 +285,7 @@ pub struct World {
     arm_noise: SimRng,
     object_motion: SimRng,
     outcome: Option<Outcome>,
+    mishaps: Vec<Mishap>,
     /// A failure that ends the trial has happened (any but a lost object), or the mission ended.
     ended: bool,
     rejected_commands: u64,
@@ -366,6 +386,7 @@ impl World {
             arm_noise: SimRng::new(seed, Stream::ArmNoise),
             object_motion: SimRng::new(seed, Stream::ObjectMotion),
             outcome: None,
+            mishaps: Vec::new(),
             ended: false,
             rejected_commands: 0,
             config,
@@ -418,7 +439,12 @@ impl World {
     /// The mission ended having given a task up, or without every object where it belongs:
     /// the trial ends, failed with [`FailureReason::TaskFailed`] unless it had already failed.
     pub fn mission_gave_up(&mut self) {
-        self.fail(FailureReason::TaskFailed);
+        self.fail(FailureReason::TaskFailed, None, "");
+    }
+
+    /// Every failure so far, in order.
+    pub fn mishaps(&self) -> &[Mishap] {
+        &self.mishaps
     }
 
     /// Number of commands dropped because they had the wrong length or a non-finite value.
@@ -548,7 +574,19 @@ impl World {
         self.sensors.gripper_opening = self.gripper.opening;
     }
 
-    fn fail(&mut self, reason: FailureReason) {
+    fn fail(&mut self, reason: FailureReason, object: Option<usize>, detail: &'static str) {
+        // A collision is checked every step while it lasts; one record of it is enough.
+        let repeated = object.is_none()
+            && !matches!(reason, FailureReason::MissedGrasp)
+            && self.mishaps.iter().any(|m| m.reason == reason);
+        if !repeated {
+            self.mishaps.push(Mishap {
+                time: self.truth.time,
+                reason,
+                object,
+                detail,
+            });
+        }
         if self.outcome.is_none() {
             self.outcome = Some(Outcome::Failure(reason));
         }
@@ -581,29 +619,37 @@ impl World {
     fn begin_closure(&self) -> Closure {
         let tool = &self.truth.tool_pose;
         let mut candidate: Option<(usize, f64)> = None;
-        let mut attempted = false;
+        let mut nearest: Option<(usize, f64, Option<GraspMiss>)> = None;
         for (index, object) in self.truth.objects.iter().enumerate() {
             if object.state != ObjectState::OnPlatform {
                 continue;
             }
             let relative = CubeInTool::new(tool, &object.pose);
             let distance = relative.offset.norm();
-            attempted |= distance <= self.config.grasp.attempt_distance;
-            let in_window = grasp::check_window(
+            let window = grasp::check_window(
                 &relative,
                 self.gripper.opening,
                 self.config.objects.cube_size,
                 &self.config.gripper,
                 &self.config.grasp,
-            )
-            .is_ok();
-            if in_window && candidate.is_none_or(|(_, best)| distance < best) {
+            );
+            if distance <= self.config.grasp.attempt_distance
+                && nearest.is_none_or(|(_, best, _)| distance < best)
+            {
+                nearest = Some((index, distance, window.err()));
+            }
+            if window.is_ok() && candidate.is_none_or(|(_, best)| distance < best) {
                 candidate = Some((index, distance));
             }
         }
+        let candidate = candidate.map(|(index, _)| index);
         Closure {
-            candidate: candidate.map(|(index, _)| index),
-            attempted,
+            candidate,
+            nearest: nearest.map(|(index, _, _)| index),
+            // The nearest cube was out of the window from the start.
+            lost: nearest
+                .and_then(|(_, _, miss)| miss)
+                .filter(|_| candidate.is_none()),
         }
     }
 
@@ -627,6 +673,7 @@ impl World {
             );
             if in_window.is_err() || cube.state != ObjectState::OnPlatform {
                 closure.candidate = None;
+                closure.lost = in_window.err();
             } else {
                 // The squeeze turns the cube square to the fingers, which stop at its edge length.
                 let width = self.config.objects.cube_size;
@@ -659,8 +706,8 @@ impl World {
             }
         }
         if opening <= 0.0 {
-            if closure.attempted {
-                self.fail(FailureReason::MissedGrasp);
+            if closure.nearest.is_some() {
+                self.fail(FailureReason::MissedGrasp, closure.nearest, "");
             }
             self.closure = None;
         } else {
@@ -733,7 +780,7 @@ impl World {
             cube.placed_time = Some(time);
         } else {
             cube.state = ObjectState::DroppedOutside;
-            self.fail(FailureReason::DroppedOutside);
+            self.fail(FailureReason::DroppedOutside, Some(index), "");
         }
     }
 
@@ -755,18 +802,25 @@ impl World {
                 self.gripper.opening,
                 &cube_box,
             ) {
-                Contact::None => false,
-                Contact::Finger => candidate != Some(index),
-                Contact::Palm => true,
+                Contact::None => None,
+                Contact::Finger if candidate == Some(index) => None,
+                Contact::Finger => Some(match self.closure {
+                    None => "finger",
+                    Some(Closure {
+                        lost: Some(miss), ..
+                    }) => miss.knock_detail(),
+                    Some(_) => "finger, closing on another cube or none",
+                }),
+                Contact::Palm => Some("palm"),
             };
-            if hit {
-                self.knock_off(index);
+            if let Some(detail) = hit {
+                self.knock_off(index, detail);
             }
         }
     }
 
     /// Throws a cube off its platform, in the direction the tool was moving relative to it.
-    fn knock_off(&mut self, index: usize) {
+    fn knock_off(&mut self, index: usize, detail: &'static str) {
         let platform = self.layout.platforms[index];
         let half_platform = platform.half_extents.x.max(platform.half_extents.y);
         let throw = half_platform + self.config.objects.knock_off_throw;
@@ -783,7 +837,7 @@ impl World {
         cube.pose = resting_pose(Vector3::new(landing.x, landing.y, half), cube.yaw());
         cube.velocity = Vector3::zeros();
         cube.state = ObjectState::KnockedOff;
-        self.fail(FailureReason::KnockedOff);
+        self.fail(FailureReason::KnockedOff, Some(index), detail);
     }
 
     fn check_base_collision(&mut self) {
@@ -798,7 +852,7 @@ impl World {
             self.config.base_height,
         );
         if self.obstacles.iter().any(|o| o.intersects(&body)) {
-            self.fail(FailureReason::BaseCollision);
+            self.fail(FailureReason::BaseCollision, None, "");
         }
     }
 

@@ -175,6 +175,10 @@ fn a_closure_three_centimetres_off_along_the_finger_width_misses() {
         Some(Outcome::Failure(FailureReason::MissedGrasp))
     );
     assert_eq!(world.outcome().unwrap().failure(), Some("missed_grasp"));
+    let mishaps = world.mishaps();
+    assert_eq!(mishaps.len(), 1);
+    assert_eq!(mishaps[0].reason, FailureReason::MissedGrasp);
+    assert_eq!(mishaps[0].object, Some(0));
 }
 
 #[test]
@@ -189,6 +193,13 @@ fn a_finger_landing_on_the_cube_knocks_it_off() {
     assert_eq!(world.outcome().unwrap().failure(), Some("knocked_off"));
     // A scenario of one object: the lost cube ends the trial.
     assert_eq!(world.decided(), world.outcome());
+    // The record says which cube and how: an open finger came down on it.
+    let mishaps = world.mishaps();
+    assert_eq!(mishaps.len(), 1, "{mishaps:?}");
+    assert_eq!(mishaps[0].reason, FailureReason::KnockedOff);
+    assert_eq!(mishaps[0].object, Some(0));
+    assert_eq!(mishaps[0].detail, "finger");
+    assert!(mishaps[0].time > 0.0 && mishaps[0].time <= world.truth().time);
 }
 
 #[test]
@@ -220,9 +231,16 @@ fn a_lost_cube_leaves_a_longer_mission_going_until_it_ends() {
         ),
     );
     assert_eq!(world.decided(), None);
-    // ... until the mission ends, with the first failure.
+    // ... until the mission ends, with the first failure; both are on record, the give-up once
+    // however often it is reported.
+    world.mission_gave_up();
     world.mission_gave_up();
     assert_eq!(world.decided(), knocked_off);
+    let reasons: Vec<_> = world.mishaps().iter().map(|m| m.reason).collect();
+    assert_eq!(
+        reasons,
+        [FailureReason::KnockedOff, FailureReason::TaskFailed]
+    );
     assert!(FailureReason::KnockedOff.object_lost());
     assert!(!FailureReason::BaseCollision.object_lost());
     assert!(!FailureReason::TaskFailed.object_lost());
@@ -265,6 +283,9 @@ fn a_gripper_sweeping_sideways_into_the_cube_knocks_it_off() {
         world.outcome(),
         Some(Outcome::Failure(FailureReason::KnockedOff))
     );
+    // An open hand, no closure: a finger or the palm swept into it.
+    let detail = world.mishaps()[0].detail;
+    assert!(detail == "finger" || detail == "palm", "{detail}");
     let landed = world.truth().objects[0].position();
     assert!(
         (landed.xy() - cube.xy()).norm() > 0.2,
@@ -659,6 +680,10 @@ fn the_squeeze_aligns_a_turned_cube_up_to_the_yaw_tolerance() {
             assert_eq!(
                 world.outcome(),
                 Some(Outcome::Failure(FailureReason::KnockedOff))
+            );
+            assert_eq!(
+                world.mishaps()[0].detail,
+                "finger, closing, cube out of the grasp window: yaw"
             );
         }
     }

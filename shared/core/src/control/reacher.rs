@@ -104,6 +104,13 @@ pub struct ReacherConfig {
     /// the cube, and swept it off (Exp 2 at 0.4 m/s). Below that ratio the late plan keeps its
     /// time: the arm is then only a little harder on the tool than the limit.
     pub late_acceleration_ratio: f64,
+    /// How far below the pre-grasp point's height a reaching tool may sink, m (0.01). A reach
+    /// runs straight from above to the pre-grasp point, but a tool that lags its command (the
+    /// arm at the edge of its reach, the base turning on the spot) keeps descending while its
+    /// horizontal travel stalls, and arrived at the height of the row's cubes a few decimetres
+    /// short of the target, where the hand swept the neighbours off (Exp 2). Below this the
+    /// reach's downward velocity is dropped and the shortfall climbed back at `hold_gain`.
+    pub sink_margin: f64,
 }
 
 impl Default for ReacherConfig {
@@ -120,6 +127,7 @@ impl Default for ReacherConfig {
             object_yaw: 0.0,
             acceleration_fraction: 0.9,
             late_acceleration_ratio: 2.0,
+            sink_margin: 0.01,
         }
     }
 }
@@ -148,6 +156,7 @@ impl ReacherConfig {
                 "late_acceleration_ratio",
                 self.late_acceleration_ratio >= 1.0,
             ),
+            ("sink_margin", self.sink_margin >= 0.0),
         ];
         for (key, ok) in checks {
             if !ok {
@@ -157,7 +166,8 @@ impl ReacherConfig {
                     "out of range (need k_A > 0, 0 ≤ pregrasp_height < 0.1, min_duration > 0, \
                      min_base_speed > 0, hold_gain ≥ 0, hold_max_speed > 0, \
                      side_change_margin ≥ 0, yaw_symmetry > 0, object_yaw finite, \
-                     0 < acceleration_fraction ≤ 1, late_acceleration_ratio ≥ 1)",
+                     0 < acceleration_fraction ≤ 1, late_acceleration_ratio ≥ 1, \
+                     sink_margin ≥ 0)",
                 ));
             }
         }
@@ -420,7 +430,12 @@ impl Reacher {
         )
         .expect("finite inputs and a positive duration");
 
-        let ahead = translation.evaluate(input.dt);
+        let mut ahead = translation.evaluate(input.dt);
+        let sunk = goal_position.z - config.sink_margin - input.tool.pose.translation.z;
+        if sunk > 0.0 {
+            ahead.velocity.z = ahead.velocity.z.max(config.hold_gain * sunk);
+            ahead.acceleration.z = 0.0;
+        }
         let turn = rotation.evaluate(input.dt);
         Ok(ReacherOutput {
             twist: stack(&ahead.velocity, &-turn.velocity),
@@ -905,6 +920,54 @@ mod tests {
         )
         .unwrap();
         assert!(peak_acceleration(&quintic) <= allowed + 1e-9);
+    }
+
+    #[test]
+    fn a_tool_sunk_below_the_pregrasp_height_far_from_the_target_is_not_taken_lower() {
+        // The tool lags its command: 4 cm under the pre-grasp point's height, still 0.4 m short
+        // of it, and moving down. The plan from there would go on descending; the floor stops
+        // that and climbs back.
+        let pregrasp = ReacherConfig::default().pregrasp_height;
+        let target = Vector3::new(0.9, -0.6, 0.45);
+        let sunk = target + Vector3::new(-0.4, 0.0, pregrasp - 0.04);
+        let input = ReacherInput {
+            task_index: 0,
+            base: BasePose::default(),
+            base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
+            tool: ToolState {
+                pose: Isometry3::from_parts(sunk.into(), ready_tool().rotation),
+                twist: Twist::new(0.2, 0.0, -0.15, 0.0, 0.0, 0.0),
+                acceleration: Vector6::zeros(),
+            },
+            target: TargetEstimate::fixed(target),
+            target_yaw: None,
+            time_to_range: 0.0,
+            range_entry_pose: BasePose::default(),
+            dt: DT,
+        };
+        let floored = Reacher::with_ready_tool(ReacherConfig::default(), ready_tool())
+            .step(&input)
+            .unwrap();
+        assert_eq!(floored.mode, ReachMode::Reaching);
+        let gain = ReacherConfig::default().hold_gain;
+        let margin = ReacherConfig::default().sink_margin;
+        assert!(
+            (floored.twist[2] - gain * (0.04 - margin)).abs() < 1e-9,
+            "climbs back at the hold gain: {}",
+            floored.twist[2]
+        );
+        assert_eq!(floored.acceleration[2], 0.0);
+        // Without the floor the plan descends further.
+        let config = ReacherConfig {
+            sink_margin: 1.0,
+            ..ReacherConfig::default()
+        };
+        let free = Reacher::with_ready_tool(config, ready_tool())
+            .step(&input)
+            .unwrap();
+        assert!(free.twist[2] < 0.0, "{}", free.twist[2]);
+        // The horizontal motion is the plan's either way.
+        assert_eq!(floored.twist[0], free.twist[0]);
     }
 
     #[test]

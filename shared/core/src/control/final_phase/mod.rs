@@ -117,6 +117,9 @@ pub struct FinalPhaseInput {
     pub target: TargetEstimate,
     /// Measured distance between the gripper fingers, m.
     pub gripper_opening: f64,
+    /// Measured world velocity of the tool point, m/s ([`ToolVelocityEstimate`]; zero when
+    /// not yet known).
+    pub tool_velocity: Vector3<f64>,
 }
 
 impl FinalPhaseInput {
@@ -143,12 +146,71 @@ impl FinalPhaseInput {
             .position
             .iter()
             .chain(self.target.velocity.iter())
+            .chain(self.tool_velocity.iter())
             .all(|x| x.is_finite());
         self.t.is_finite()
             && self.gripper_opening.is_finite()
             && pose_finite
             && base_finite
             && target_finite
+    }
+}
+
+/// The tool point's world velocity, estimated from its measured positions: the displacement over
+/// the last `window` seconds. The window spans several odometry periods: the tool pose is the
+/// arm's forward kinematics at the latest odometry pose, which arrives at 50 Hz while the joints
+/// are measured every cycle, so the pose saws back and forth by the base's motion in one odometry
+/// period, and a one-cycle difference reads that as ±0.1 m/s. A step implying more than
+/// `max_speed` (an odometry jump) is not motion: the estimate starts again from there.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ToolVelocityEstimate {
+    /// Span of the displacement, s.
+    pub window: f64,
+    /// Fastest believable tool speed, m/s.
+    pub max_speed: f64,
+    samples: std::collections::VecDeque<(f64, Vector3<f64>)>,
+    velocity: Vector3<f64>,
+}
+
+impl Default for ToolVelocityEstimate {
+    /// 60 ms (three odometry periods) and 3 m/s (beyond any arm of the stack's TCP speed).
+    fn default() -> Self {
+        Self {
+            window: 0.06,
+            max_speed: 3.0,
+            samples: std::collections::VecDeque::new(),
+            velocity: Vector3::zeros(),
+        }
+    }
+}
+
+impl ToolVelocityEstimate {
+    /// Takes the tool position measured at `t` and returns the velocity estimate (zero until a
+    /// window's worth of samples is in). A time that does not advance, or a non-finite sample,
+    /// leaves the estimate as it is.
+    pub fn update(&mut self, t: f64, position: Vector3<f64>) -> Vector3<f64> {
+        if !(t.is_finite() && position.iter().all(|x| x.is_finite())) {
+            return self.velocity;
+        }
+        if let Some(&(last_t, last_position)) = self.samples.back() {
+            if t <= last_t {
+                return self.velocity;
+            }
+            if (position - last_position).norm() > self.max_speed * (t - last_t) {
+                self.samples.clear();
+                self.velocity = Vector3::zeros();
+            }
+        }
+        self.samples.push_back((t, position));
+        while self.samples.len() > 2 && t - self.samples[1].0 >= self.window {
+            self.samples.pop_front();
+        }
+        if let Some(&(first_t, first_position)) = self.samples.front()
+            && t - first_t >= self.window
+        {
+            self.velocity = (position - first_position) / (t - first_t);
+        }
+        self.velocity
     }
 }
 
@@ -446,6 +508,14 @@ pub struct GraspConfig {
     /// horizontal error, so the fingers come down onto the object rather than sweep into it
     /// from the side (1.0: a 45° cone; 0 disables it).
     pub descent_slope: f64,
+    /// The cone's horizontal error is also taken where the tool comes to rest relative to the
+    /// object when braked at this deceleration, when that is farther off, m/s² (0.5; 0 disables
+    /// it): v²/2a along its relative velocity v. Half the twist's rate limit at 0.3 m/s, for
+    /// the lag of the velocity estimate and of the tracking. A reach that ran late hands the tool over still
+    /// moving at a few decimetres a second, and the twist's rate limit (1.05 m/s² at 0.3 m/s)
+    /// brakes it over centimetres: measured from where the tool is, the cone let the fingers
+    /// down onto the object's top edge as the tool overshot it (Exp 2 knock-offs).
+    pub descent_braking: f64,
     /// The grasp counts as closed when the finger opening falls to this, m (0.032: the 30 mm
     /// cube plus 2 mm).
     pub closed_opening: f64,
@@ -475,6 +545,7 @@ impl Default for GraspConfig {
             close_max_tilt: 5f64.to_radians(),
             grasp_offset: [0.0; 3],
             descent_slope: 1.0,
+            descent_braking: 0.5,
             closed_opening: 0.032,
             open_opening: 0.07,
             closing_timeout: 1.0,
@@ -501,6 +572,7 @@ impl GraspConfig {
             ],
         )?;
         require_non_negative(file, "grasp.descent_slope", self.descent_slope)?;
+        require_non_negative(file, "grasp.descent_braking", self.descent_braking)?;
         if let Some(bad) = self.grasp_offset.iter().find(|x| !x.is_finite()) {
             return Err(ModelError::invalid(
                 file,
@@ -682,6 +754,44 @@ mod tests {
     }
 
     #[test]
+    fn the_tool_velocity_spans_the_odometry_period_and_restarts_on_a_jump() {
+        // A tool at rest in the world while the base drives at 0.3 m/s: the joints are measured
+        // every 5 ms but the odometry only every 20 ms, so the pose saws by 6 mm.
+        let mut estimate = ToolVelocityEstimate::default();
+        let mut worst: f64 = 0.0;
+        for step in 0..200 {
+            let t = step as f64 * 0.005;
+            let since_odometry = t % 0.02;
+            let sawtooth = Vector3::new(0.3 * since_odometry, 0.0, 0.0);
+            let v = estimate.update(t, Vector3::new(1.0, 0.5, 0.5) + sawtooth);
+            if t > 0.1 {
+                worst = worst.max(v.norm());
+            }
+        }
+        assert!(worst < 0.12, "a tool at rest read as moving at {worst} m/s");
+        let one_cycle = 0.3 * 0.015 / 0.005;
+        assert!(worst < one_cycle, "{worst} against {one_cycle} from one cycle");
+
+        // Moving steadily at 0.4 m/s along y it reads 0.4 m/s; a repeated time changes nothing.
+        let mut estimate = ToolVelocityEstimate::default();
+        let mut v = Vector3::zeros();
+        for step in 0..40 {
+            let t = step as f64 * 0.005;
+            v = estimate.update(t, Vector3::new(0.0, 0.4 * t, 0.0));
+        }
+        assert!((v - Vector3::new(0.0, 0.4, 0.0)).norm() < 1e-9, "{v}");
+        let t = 39.0 * 0.005;
+        assert_eq!(estimate.update(t, Vector3::new(5.0, 5.0, 5.0)), v);
+        assert_eq!(estimate.update(f64::NAN, Vector3::zeros()), v);
+
+        // A jump of 10 cm in one cycle (20 m/s) is not motion: the estimate starts again.
+        let jumped = estimate.update(0.2, Vector3::new(0.1, 0.08, 0.0));
+        assert_eq!(jumped, Vector3::zeros());
+        let after = estimate.update(0.3, Vector3::new(0.1, 0.08 + 0.04, 0.0));
+        assert!((after - Vector3::new(0.0, 0.4, 0.0)).norm() < 1e-9, "{after}");
+    }
+
+    #[test]
     fn build_gives_the_requested_kind() {
         let config = FinalPhaseConfig::default();
         for kind in FinalPhaseKind::ALL {
@@ -701,6 +811,7 @@ mod tests {
             base_velocity: BaseVelocity { v: 0.3, omega: 0.0 },
             target: TargetEstimate::fixed(button),
             gripper_opening: 0.08,
+            tool_velocity: Vector3::zeros(),
         };
         let mut active: Box<dyn FinalPhaseController> = build(FinalPhaseKind::Grasp, &config);
         assert_send(&active);

@@ -1,7 +1,9 @@
 //! A small kinematic world for the final-phase tests: an ideal tool that follows the commanded
 //! world twist one cycle late, with a fraction of the base velocity leaking into its motion (the
-//! resolver's imperfect compensation), a base driving at constant speed, a target on a circle or
-//! at rest, and a gripper that closes at a fixed rate and stops on the cube.
+//! resolver's imperfect compensation) and, optionally, its linear velocity changing no faster
+//! than an acceleration limit (the resolver's twist rate limit), a base driving at constant
+//! speed, a target on a circle or at rest, and a gripper that closes at a fixed rate and stops
+//! on the cube.
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -82,6 +84,11 @@ pub struct KinematicWorld {
     pub graspable: bool,
     /// Fraction of the base's world velocity that leaks into the tool's motion.
     pub leak: f64,
+    /// Largest change of the tool's commanded linear velocity per second, m/s² (infinite: the
+    /// command is followed at once).
+    pub max_linear_acceleration: f64,
+    /// The tool's world linear velocity over the last period, m/s.
+    pub tool_velocity: Vector3<f64>,
     applied: Twist,
     held_offset: Vector3<f64>,
 }
@@ -104,9 +111,17 @@ impl KinematicWorld {
             holding: false,
             graspable: true,
             leak: 0.03,
+            max_linear_acceleration: f64::INFINITY,
+            tool_velocity: Vector3::zeros(),
             applied: Twist::zeros(),
             held_offset: Vector3::zeros(),
         }
+    }
+
+    /// Sets the tool moving at `velocity` (world, m/s), as a reach hands it over.
+    pub fn set_tool_velocity(&mut self, velocity: Vector3<f64>) {
+        self.applied.fixed_rows_mut::<3>(0).copy_from(&velocity);
+        self.tool_velocity = velocity;
     }
 
     /// This cycle's controller input.
@@ -118,6 +133,7 @@ impl KinematicWorld {
             base_velocity: self.base_velocity,
             target: self.target,
             gripper_opening: self.gripper_opening,
+            tool_velocity: self.tool_velocity,
         }
     }
 
@@ -133,11 +149,23 @@ impl KinematicWorld {
         let base_world_velocity = heading * self.base_velocity.v;
         let linear = self.applied.fixed_rows::<3>(0).into_owned() + base_world_velocity * self.leak;
         let angular = self.applied.fixed_rows::<3>(3).into_owned();
+        self.tool_velocity = linear;
         self.tool = Isometry3::from_parts(
             Translation3::from(self.tool.translation.vector + linear * dt),
             UnitQuaternion::from_scaled_axis(angular * dt) * self.tool.rotation,
         );
+        let previous = self.applied.fixed_rows::<3>(0).into_owned();
+        let change = output.twist.fixed_rows::<3>(0) - previous;
+        let largest = self.max_linear_acceleration * dt;
+        let change = if change.norm() > largest {
+            change * (largest / change.norm())
+        } else {
+            change
+        };
         self.applied = output.twist;
+        self.applied
+            .fixed_rows_mut::<3>(0)
+            .copy_from(&(previous + change));
 
         self.base.x += base_world_velocity.x * dt;
         self.base.y += base_world_velocity.y * dt;

@@ -5,7 +5,7 @@ use nalgebra::Isometry3;
 
 use crate::final_phase::{
     FinalPhaseConfig, FinalPhaseController, FinalPhaseInput, FinalPhaseKind, FinalPhaseOutput,
-    build,
+    ToolVelocityEstimate, build,
 };
 use crate::kinematics::BasePose;
 use crate::mission::Phase;
@@ -56,6 +56,9 @@ pub struct FinalPhaseCycle {
     mode: VariantMode,
     config: FinalPhaseConfig,
     controller: Box<dyn FinalPhaseController>,
+    /// Updated every cycle, whoever owns the arm, so a controller knows the tool's velocity
+    /// from its first cycle (the reach's hand-over).
+    tool_velocity: ToolVelocityEstimate,
     task_index: Option<usize>,
     rejected: u64,
 }
@@ -69,6 +72,7 @@ impl FinalPhaseCycle {
         };
         Self {
             controller: build(first, &config),
+            tool_velocity: ToolVelocityEstimate::default(),
             mode,
             config,
             task_index: None,
@@ -93,6 +97,9 @@ impl FinalPhaseCycle {
 
     /// One cycle.
     pub fn step(&mut self, input: &FinalPhaseCycleInput) -> FinalPhaseCycleOutput {
+        let tool_velocity = self
+            .tool_velocity
+            .update(input.t, input.tool_pose.translation.vector);
         let mission = &input.mission;
         if mission.is_complete() {
             let gripper = (self.mode == VariantMode::FollowMission).then(|| resting_gripper(None));
@@ -125,6 +132,7 @@ impl FinalPhaseCycle {
             base_velocity: input.base_velocity,
             target: input.target,
             gripper_opening: input.gripper_opening,
+            tool_velocity,
         });
         if out.input_rejected {
             self.rejected += 1;
