@@ -5,7 +5,8 @@
 
 use motm_core::Robot;
 use motm_core::final_phase::FinalPhaseStage;
-use motm_core::mission::Phase;
+use motm_core::mission::{Phase, TaskKind};
+use motm_core::reacher::{ReacherConfig, tool_yaw};
 use motm_core::stack::final_phase::{FinalPhaseCycle, FinalPhaseCycleInput, VariantMode};
 use motm_core::stack::seconds;
 use motm_graph::{Task, ports};
@@ -43,6 +44,7 @@ ports! {
 /// The final-phase task.
 pub struct FinalPhaseTask {
     robot: Robot,
+    reacher: ReacherConfig,
     view: ControlView,
     cycle: FinalPhaseCycle,
     controller_id: u32,
@@ -54,6 +56,7 @@ impl FinalPhaseTask {
     pub fn new(setup: &ControlSetup, mode: VariantMode, controller_id: u32) -> Self {
         Self {
             robot: setup.robot.clone(),
+            reacher: setup.config.reacher.clone(),
             view: ControlView::new(setup.config.mission.run_out_distance),
             cycle: FinalPhaseCycle::new(mode, setup.config.final_phase),
             controller_id,
@@ -96,15 +99,21 @@ impl Task for FinalPhaseTask {
         if measured.arm_q.len() != self.robot.arm_dof() {
             return FinalPhaseOutputs::default();
         }
+        let tool_pose = self.robot.tool_pose(&measured.base, measured.arm_q);
+        let grasp_yaw = (mission.kind == TaskKind::Pick).then(|| {
+            self.reacher
+                .grasp_yaw(mission.odometry_offset[2], tool_yaw(&tool_pose.rotation))
+        });
         let out = self.cycle.step(&FinalPhaseCycleInput {
             mission,
             t: seconds(now_ns),
-            tool_pose: self.robot.tool_pose(&measured.base, measured.arm_q),
+            tool_pose,
             base_pose: measured.base,
             base_velocity: measured.base_velocity,
             target,
             // Without a gripper state the controller refuses the cycle and nothing is sent.
             gripper_opening: inputs.gripper.as_ref().map_or(f64::NAN, |g| g.width),
+            grasp_yaw,
         });
         self.stage = out.control.map(|c| c.stage);
         let accepted = out.control.is_none_or(|c| !c.input_rejected);

@@ -133,6 +133,22 @@ impl Default for ReacherConfig {
 }
 
 impl ReacherConfig {
+    /// The yaw a pick's object stands at in the odometry frame, whose frame has turned against
+    /// the world by `odometry_yaw_offset` (the mission's correction).
+    pub fn pick_yaw(&self, odometry_yaw_offset: f64) -> f64 {
+        self.object_yaw + odometry_yaw_offset
+    }
+
+    /// The gripper yaw that grasps a pick's object ([`Self::pick_yaw`]) turning the gripper
+    /// least from `current_yaw` ([`symmetric_yaw`]).
+    pub fn grasp_yaw(&self, odometry_yaw_offset: f64, current_yaw: f64) -> f64 {
+        symmetric_yaw(
+            self.pick_yaw(odometry_yaw_offset),
+            self.yaw_symmetry,
+            current_yaw,
+        )
+    }
+
     /// Checks the values; `file` is the configuration file they came from, named in the error.
     pub fn validate(&self, file: &Path) -> Result<(), ModelError> {
         let checks = [

@@ -203,9 +203,13 @@ impl FinalPhaseController for GraspController {
         self.advance(input);
         let (goal, feed_forward) = self.goal(input);
         let limit = self.servo.correction_speed_limit(&input.base_velocity);
-        let twist = self
-            .servo
-            .twist(&input.tool_pose, &goal, &feed_forward, limit);
+        let twist = self.servo.twist_to_yaw(
+            &input.tool_pose,
+            &goal,
+            &feed_forward,
+            limit,
+            input.grasp_yaw,
+        );
         FinalPhaseOutput::new(twist, self.gripper(), self.stage)
     }
 
@@ -393,6 +397,40 @@ mod tests {
     }
 
     #[test]
+    fn turns_the_gripper_to_the_grasp_yaw_before_closing() {
+        // Handed over 0.4 rad off the cube's faces (a reach cut short by a late hand-over): the
+        // servo turns the gripper toward square with the cube while it descends (at the
+        // orientation gain, 2/s, it has turned most of the way when the position has converged);
+        // without a grasp yaw it only levels the tool and keeps the yaw it came with.
+        let config = super::super::FinalPhaseConfig::default();
+        let tool_at = |yaw: f64| {
+            Isometry3::from_parts(
+                (CUBE + Vector3::new(0.03, -0.02, 0.06)).into(),
+                crate::reacher::top_down(yaw),
+            )
+        };
+        for (grasp_yaw, expected, tolerance) in [(Some(0.0), 0.0, 0.15), (None, 0.4, 0.02)] {
+            let mut controller = GraspController::new(config.servo, config.grasp);
+            let mut world = KinematicWorld::new(tool_at(0.4), 0.3, TargetPath::Static(CUBE), DT);
+            world.grasp_yaw = grasp_yaw;
+            let mut closed_at = None;
+            for _ in 0..200 {
+                let out = controller.step(&world.input());
+                if out.gripper == GripperCommand::Close {
+                    closed_at = Some(crate::reacher::tool_yaw(&world.tool.rotation));
+                    break;
+                }
+                world.advance(&out);
+            }
+            let yaw = closed_at.expect("never closed");
+            assert!(
+                (yaw - expected).abs() < tolerance,
+                "closed at yaw {yaw} with grasp yaw {grasp_yaw:?}"
+            );
+        }
+    }
+
+    #[test]
     fn comes_down_onto_a_cube_approached_from_the_side() {
         // The tool starts level with the cube, 9 cm to the side. Going straight there would
         // sweep the fingers into the cube; the descent cone must bring it over the top first.
@@ -495,16 +533,23 @@ mod tests {
         // Exp 2's late reach: handed over 5.7 cm to the side and 7.5 cm up, still crossing at
         // 0.39 m/s and sinking at 0.18 m/s, the twist rate-limited to 1.05 m/s² (0.3 m/s runs).
         // The tool overshoots the cube by 2 cm. Measured from where the tool is, the cone let it
-        // sink to the cube's top 2 cm to the side, where a finger meets the cube's edge; taken
-        // where the tool comes to rest, it stays a centimetre higher until it has braked.
+        // sink below the cube's top 2 cm to the side, where a finger meets the cube's edge;
+        // taken where the tool comes to rest, it stays over the top until it has braked.
         let default = GraspConfig::default().descent_braking;
         let braking = lowest_off_axis_height(default, 0.39, 0.015);
-        assert!(
-            braking > 0.01,
-            "tool point {braking} m over the cube's top while 1.5 cm+ to the side"
-        );
         let without = lowest_off_axis_height(0.0, 0.39, 0.015);
-        assert!(without < 0.005, "without braking: {without} m");
+        assert!(
+            braking > 0.0 && without < 0.0 && braking - without > 0.005,
+            "tool point {braking} m over the cube's top while 1.5 cm+ to the side, {without} m \
+             without braking"
+        );
+        // Faster, the braking distance grows with v² and so does the margin.
+        let braking = lowest_off_axis_height(default, 0.5, 0.015);
+        let without = lowest_off_axis_height(0.0, 0.5, 0.015);
+        assert!(
+            braking > 0.02 && without < 0.005,
+            "at 0.5 m/s: {braking} m, {without} m without braking"
+        );
         // A tool handed over at rest is not held up by it (to a fraction of a millimetre: the
         // base's leak moves it a little).
         let at_rest = lowest_off_axis_height(default, 0.0, 0.015);

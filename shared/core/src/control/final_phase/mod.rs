@@ -120,6 +120,9 @@ pub struct FinalPhaseInput {
     /// Measured world velocity of the tool point, m/s ([`ToolVelocityEstimate`]; zero when
     /// not yet known).
     pub tool_velocity: Vector3<f64>,
+    /// The gripper yaw that grasps the object, rad, when the task is a pick and the object's
+    /// yaw is known (the grasp servos the tool to it; other tasks ignore it).
+    pub grasp_yaw: Option<f64>,
 }
 
 impl FinalPhaseInput {
@@ -147,6 +150,7 @@ impl FinalPhaseInput {
             .iter()
             .chain(self.target.velocity.iter())
             .chain(self.tool_velocity.iter())
+            .chain(self.grasp_yaw.iter())
             .all(|x| x.is_finite());
         self.t.is_finite()
             && self.gripper_opening.is_finite()
@@ -383,11 +387,30 @@ impl ServoConfig {
         feed_forward: &Vector3<f64>,
         correction_limit: f64,
     ) -> Twist {
+        self.twist_to_yaw(tool_pose, goal, feed_forward, correction_limit, None)
+    }
+
+    /// [`Self::twist`], and with `yaw` the tool is also turned about the vertical to that yaw
+    /// (top-down at `yaw`, as the reacher aims it) instead of only tilted top-down.
+    pub fn twist_to_yaw(
+        &self,
+        tool_pose: &Isometry3<f64>,
+        goal: &Vector3<f64>,
+        feed_forward: &Vector3<f64>,
+        correction_limit: f64,
+        yaw: Option<f64>,
+    ) -> Twist {
         let error = goal - tool_pose.translation.vector;
         let correction = saturate(error * self.position_gain, correction_limit);
         let linear = saturate(correction + feed_forward, self.max_linear_speed);
+        let orientation_error = match yaw {
+            Some(yaw) => {
+                (crate::reacher::top_down(yaw) * tool_pose.rotation.inverse()).scaled_axis()
+            }
+            None => top_down_error(&tool_pose.rotation),
+        };
         let angular = saturate(
-            top_down_error(&tool_pose.rotation) * self.orientation_gain,
+            orientation_error * self.orientation_gain,
             self.max_angular_speed,
         );
         Twist::new(
@@ -509,12 +532,13 @@ pub struct GraspConfig {
     /// from the side (1.0: a 45° cone; 0 disables it).
     pub descent_slope: f64,
     /// The cone's horizontal error is also taken where the tool comes to rest relative to the
-    /// object when braked at this deceleration, when that is farther off, m/s² (0.5; 0 disables
-    /// it): v²/2a along its relative velocity v. Half the twist's rate limit at 0.3 m/s, for
-    /// the lag of the velocity estimate and of the tracking. A reach that ran late hands the tool over still
+    /// object when braked at this deceleration, when that is farther off, m/s² (1.0; 0 disables
+    /// it): v²/2a along its relative velocity v. A reach that ran late hands the tool over still
     /// moving at a few decimetres a second, and the twist's rate limit (1.05 m/s² at 0.3 m/s)
     /// brakes it over centimetres: measured from where the tool is, the cone let the fingers
-    /// down onto the object's top edge as the tool overshot it (Exp 2 knock-offs).
+    /// down onto the object's top edge as the tool overshot it (Exp 2 knock-offs). 0.5 m/s²
+    /// kept Exp 1's tool over the cube longer (9.98 s against 9.72 s at 0.4 m/s); 1.0 costs
+    /// 0.03 s there.
     pub descent_braking: f64,
     /// The grasp counts as closed when the finger opening falls to this, m (0.032: the 30 mm
     /// cube plus 2 mm).
@@ -545,7 +569,7 @@ impl Default for GraspConfig {
             close_max_tilt: 5f64.to_radians(),
             grasp_offset: [0.0; 3],
             descent_slope: 1.0,
-            descent_braking: 0.5,
+            descent_braking: 1.0,
             closed_opening: 0.032,
             open_opening: 0.07,
             closing_timeout: 1.0,
@@ -770,7 +794,10 @@ mod tests {
         }
         assert!(worst < 0.12, "a tool at rest read as moving at {worst} m/s");
         let one_cycle = 0.3 * 0.015 / 0.005;
-        assert!(worst < one_cycle, "{worst} against {one_cycle} from one cycle");
+        assert!(
+            worst < one_cycle,
+            "{worst} against {one_cycle} from one cycle"
+        );
 
         // Moving steadily at 0.4 m/s along y it reads 0.4 m/s; a repeated time changes nothing.
         let mut estimate = ToolVelocityEstimate::default();
@@ -788,7 +815,10 @@ mod tests {
         let jumped = estimate.update(0.2, Vector3::new(0.1, 0.08, 0.0));
         assert_eq!(jumped, Vector3::zeros());
         let after = estimate.update(0.3, Vector3::new(0.1, 0.08 + 0.04, 0.0));
-        assert!((after - Vector3::new(0.0, 0.4, 0.0)).norm() < 1e-9, "{after}");
+        assert!(
+            (after - Vector3::new(0.0, 0.4, 0.0)).norm() < 1e-9,
+            "{after}"
+        );
     }
 
     #[test]
@@ -812,6 +842,7 @@ mod tests {
             target: TargetEstimate::fixed(button),
             gripper_opening: 0.08,
             tool_velocity: Vector3::zeros(),
+            grasp_yaw: None,
         };
         let mut active: Box<dyn FinalPhaseController> = build(FinalPhaseKind::Grasp, &config);
         assert_send(&active);

@@ -89,6 +89,8 @@ pub struct KinematicWorld {
     pub max_linear_acceleration: f64,
     /// The tool's world linear velocity over the last period, m/s.
     pub tool_velocity: Vector3<f64>,
+    /// The gripper yaw the controller is told to grasp at (none: any).
+    pub grasp_yaw: Option<f64>,
     applied: Twist,
     held_offset: Vector3<f64>,
 }
@@ -113,6 +115,7 @@ impl KinematicWorld {
             leak: 0.03,
             max_linear_acceleration: f64::INFINITY,
             tool_velocity: Vector3::zeros(),
+            grasp_yaw: None,
             applied: Twist::zeros(),
             held_offset: Vector3::zeros(),
         }
@@ -134,6 +137,7 @@ impl KinematicWorld {
             target: self.target,
             gripper_opening: self.gripper_opening,
             tool_velocity: self.tool_velocity,
+            grasp_yaw: self.grasp_yaw,
         }
     }
 

@@ -39,6 +39,9 @@ pub struct FinalPhaseCycleInput {
     pub target: TargetEstimate,
     /// Measured finger opening, m.
     pub gripper_opening: f64,
+    /// The gripper yaw that grasps the current pick's object, when it is known
+    /// ([`crate::reacher::ReacherConfig::grasp_yaw`]).
+    pub grasp_yaw: Option<f64>,
 }
 
 /// What the final-phase process publishes each cycle.
@@ -133,6 +136,7 @@ impl FinalPhaseCycle {
             target: input.target,
             gripper_opening: input.gripper_opening,
             tool_velocity,
+            grasp_yaw: input.grasp_yaw,
         });
         if out.input_rejected {
             self.rejected += 1;

@@ -129,7 +129,7 @@ impl ReacherCycle {
                 // The objects' yaw is known in the world; the arm works in odometry, whose
                 // frame has turned against the world by the correction's yaw.
                 target_yaw: (mission.kind == TaskKind::Pick)
-                    .then_some(self.config.reacher.object_yaw + mission.odometry_offset[2]),
+                    .then(|| self.config.reacher.pick_yaw(mission.odometry_offset[2])),
                 time_to_range: plan.time_to_range,
                 range_entry_pose: plan.range_entry_pose,
                 dt: self.dt,

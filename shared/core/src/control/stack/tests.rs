@@ -266,6 +266,7 @@ fn a_fixed_variant_acts_only_on_its_own_tasks() {
         base_velocity: BaseVelocity::default(),
         target: TargetEstimate::fixed(Vector3::new(0.7, 0.0, 0.4)),
         gripper_opening: 0.08,
+        grasp_yaw: None,
     };
     let out = drop.step(&input);
     assert_eq!((out.control, out.gripper), (None, None));
