@@ -494,6 +494,10 @@ const CLEARANCE_STEP: f64 = 0.1;
 /// decides alone.
 const BLOCKED_NEXT_LEG: f64 = 5.0;
 
+/// While every route is blocked, the search for a clear one runs at most this often, s (the
+/// base turns on the spot meanwhile; a seventh of a turn at the LD-60's half yaw rate).
+const BLOCKED_REPLAN_PERIOD: f64 = 0.25;
+
 /// The tangent from `base` to the circle of radius `radius` around `target` on `side`: the
 /// tangent point and the tangent direction. `None` when the base is on or inside the circle.
 pub fn tangent_point(
@@ -530,6 +534,8 @@ struct Approach {
     committed: bool,
     /// No route to any pass plan keeps clear of the known targets.
     blocked: bool,
+    /// When every route was last found blocked, and the route the base turns toward meanwhile.
+    blocked_route: Option<(f64, DubinsPath)>,
 }
 
 /// A planned route and how far along it the base is.
@@ -619,6 +625,8 @@ pub struct BaseController {
     rearm: bool,
     /// While every route is blocked: the direction the base turns on the spot (+1 left).
     blocked_turn: Option<f64>,
+    /// Times the pass plans were scored (the planner's costly search).
+    plan_searches: std::cell::Cell<u64>,
 }
 
 impl BaseController {
@@ -642,7 +650,14 @@ impl BaseController {
             lingered: 0.0,
             rearm: false,
             blocked_turn: None,
+            plan_searches: std::cell::Cell::new(0),
         }
+    }
+
+    /// How many times the pass plans have been scored: the planner's costly search (every
+    /// plan, every Dubins word, the footprint along each), run when a route is (re)planned.
+    pub fn plan_searches(&self) -> u64 {
+        self.plan_searches.get()
     }
 
     /// The same controller, keeping its routes' footprint clear of the known positions of the
@@ -1065,6 +1080,15 @@ impl BaseController {
                 }
             }
         }
+        // Every route was blocked a moment ago: the base turns on the spot toward the route it
+        // found, and the search (every plan, every Dubins word, every lead, the footprint along
+        // each: tens of milliseconds when nothing is clear) is not run again every cycle.
+        if let Some((at, path)) = approach.blocked_route
+            && approach.blocked
+            && clock - at < BLOCKED_REPLAN_PERIOD
+        {
+            return Route::Path(path, 0.0);
+        }
         let radius = self.turn_radius();
         // Worked out only when plans are scored, not on the steps that follow the kept route.
         let look_ahead = std::cell::OnceCell::new();
@@ -1116,6 +1140,7 @@ impl BaseController {
             }
         }
         let candidates = self.candidates(base, target);
+        self.plan_searches.set(self.plan_searches.get() + 1);
         let mut best: Option<(PassPlan, f64)> = None;
         for plan in &candidates {
             if let Some(cost) = self.score(base, target, ahead(), plan, obstacles, radius)
@@ -1154,8 +1179,10 @@ impl BaseController {
         let path = self.route_to(base, &plan, target, radius, obstacles);
         if approach.blocked {
             approach.route = None;
+            approach.blocked_route = Some((clock, path));
             return Route::Path(path, 0.0);
         }
+        approach.blocked_route = None;
         approach.route = Some(KeptRoute {
             path,
             progress: 0.0,
@@ -1934,6 +1961,40 @@ mod tests {
         let beside = [Vector2::new(0.2, 0.55)];
         let (v, omega) = controller.guard(&base, 0.0, 0.5, &beside);
         assert!(v == 0.0 && omega != 0.0 && omega < 0.5, "({v}, {omega})");
+    }
+
+    #[test]
+    fn a_base_boxed_in_turns_on_the_spot_and_searches_four_times_a_second() {
+        // Known targets all round, 0.75 m off: no route to the pass keeps clear of them.
+        let ring: Vec<Vector3<f64>> = (0..8)
+            .map(|k| {
+                let angle = k as f64 * std::f64::consts::FRAC_PI_4;
+                Vector3::new(0.75 * angle.cos(), 0.75 * angle.sin(), 0.45)
+            })
+            .collect();
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like())
+            .with_layout(&ring);
+        let dt = 0.005;
+        let mut turned = 0.0;
+        for _ in 0..200 {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 0,
+                    base: BasePose::new(0.0, 0.0, 0.0),
+                    target: TargetEstimate::fixed(Vector3::new(3.0, 2.0, 0.45)),
+                    next_target: Vector3::new(-3.0, 2.0, 0.35),
+                    after_next: None,
+                    dt,
+                })
+                .unwrap();
+            assert_eq!(out.command.v, 0.0);
+            turned += out.command.omega.abs() * dt;
+        }
+        assert!(turned > 0.0, "the boxed-in base stood still");
+        // One search on the first step, then one every BLOCKED_REPLAN_PERIOD: four or five in
+        // the second, not two hundred.
+        let searches = controller.plan_searches();
+        assert!((4..=5).contains(&searches), "{searches} searches in 1 s");
     }
 
     #[test]
