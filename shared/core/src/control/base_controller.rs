@@ -1972,8 +1972,8 @@ mod tests {
                 Vector3::new(0.75 * angle.cos(), 0.75 * angle.sin(), 0.45)
             })
             .collect();
-        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like())
-            .with_layout(&ring);
+        let mut controller =
+            BaseController::new(BaseControllerConfig::default(), frankie_like()).with_layout(&ring);
         let dt = 0.005;
         let mut turned = 0.0;
         for _ in 0..200 {
