@@ -234,7 +234,7 @@ pub struct Mishap {
     /// Index of the object concerned (scenario order), if one was.
     pub object: Option<usize>,
     /// How: for a knock-off, the gripper part and the closure's state ("palm", "finger",
-    /// "finger, closing, out of the grasp window: height", ...); empty otherwise.
+    /// "finger, closing, cube out of the grasp window: height", ...); empty otherwise.
     pub detail: &'static str,
 }
 
@@ -575,10 +575,9 @@ impl World {
     }
 
     fn fail(&mut self, reason: FailureReason, object: Option<usize>, detail: &'static str) {
-        // A collision is checked every step while it lasts; one record of it is enough.
-        let repeated = object.is_none()
-            && !matches!(reason, FailureReason::MissedGrasp)
-            && self.mishaps.iter().any(|m| m.reason == reason);
+        // A collision is checked every step while it lasts, and a give-up may be reported
+        // again: one record of a failure that concerns no object is enough.
+        let repeated = object.is_none() && self.mishaps.iter().any(|m| m.reason == reason);
         if !repeated {
             self.mishaps.push(Mishap {
                 time: self.truth.time,

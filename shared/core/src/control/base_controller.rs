@@ -532,10 +532,16 @@ struct Approach {
     plan: Option<PassPlan>,
     route: Option<KeptRoute>,
     committed: bool,
-    /// No route to any pass plan keeps clear of the known targets.
-    blocked: bool,
-    /// When every route was last found blocked, and the route the base turns toward meanwhile.
+    /// While no route to any pass plan keeps clear of the known targets: when that was found,
+    /// and the route the base turns toward meanwhile ([`Approach::blocked`]).
     blocked_route: Option<(f64, DubinsPath)>,
+}
+
+impl Approach {
+    /// No route to any pass plan keeps clear of the known targets.
+    fn blocked(&self) -> bool {
+        self.blocked_route.is_some()
+    }
 }
 
 /// A planned route and how far along it the base is.
@@ -889,7 +895,7 @@ impl BaseController {
         // command check refuses it): a route point straight ahead, through what blocks the way,
         // would otherwise leave the base facing it for good; then it turns away from the
         // nearest known target.
-        let blocked = driving.blocked && !matches!(route, Route::Line(_));
+        let blocked = driving.blocked() && !matches!(route, Route::Line(_));
         let (speed, wanted_omega) = if blocked {
             let offset = point - Vector2::new(b.x, b.y);
             let bearing = wrap_angle(offset.y.atan2(offset.x) - b.yaw);
@@ -1084,7 +1090,6 @@ impl BaseController {
         // found, and the search (every plan, every Dubins word, every lead, the footprint along
         // each: tens of milliseconds when nothing is clear) is not run again every cycle.
         if let Some((at, path)) = approach.blocked_route
-            && approach.blocked
             && clock - at < BLOCKED_REPLAN_PERIOD
         {
             return Route::Path(path, 0.0);
@@ -1157,11 +1162,11 @@ impl BaseController {
             }
             return self.route_or_line(approach, base, target);
         }
-        approach.blocked = best.is_none();
+        let blocked = best.is_none();
         let plan = match best {
             Some((plan, _)) => plan,
             // Every route is blocked: the base turns on the spot (see `step`) toward the
-            // shortest, blocked or not, and plans again next step.
+            // shortest, blocked or not, and plans again after `BLOCKED_REPLAN_PERIOD`.
             None => candidates
                 .iter()
                 .map(|plan| {
@@ -1177,7 +1182,7 @@ impl BaseController {
         };
         approach.plan = Some(plan);
         let path = self.route_to(base, &plan, target, radius, obstacles);
-        if approach.blocked {
+        if blocked {
             approach.route = None;
             approach.blocked_route = Some((clock, path));
             return Route::Path(path, 0.0);

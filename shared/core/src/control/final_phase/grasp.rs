@@ -7,9 +7,8 @@
 //!    the error is also taken where the tool would come to rest braking at `descent_braking`,
 //!    when that is larger, so a tool handed over still moving fast stays up until it has
 //!    braked; under that cone the tool closes in only by the share of the cone's height it
-//!    has. When
-//!    the tool is within ε_g (`close_distance`) of the grasp point and within `close_max_tilt`
-//!    of top-down, close.
+//!    has. The gripper is turned to the grasp yaw, when one is given. When the tool is within
+//!    ε_g (`close_distance`) of the grasp point and within `close_max_tilt` of top-down, close.
 //! 2. [`Closing`](FinalPhaseStage::Closing): keep servoing onto the grasp point while the
 //!    fingers close, until the opening falls to `closed_opening` or `closing_timeout` passes.
 //! 3. [`Lifting`](FinalPhaseStage::Lifting): rise by `lift_height` above the grasp point.
