@@ -12,9 +12,10 @@
 //!    straight from the base to the tangent point and `heading_candidates` headings evenly
 //!    round the circle): the route's length to ξ_C, plus the run-in and run-out, plus the
 //!    shortest Dubins path from the end of the run-out to a tangent pose on the next target's
-//!    r_C circle. A plan whose route comes within `clearance` of a known target (a platform, a
-//!    container or a button of the mission) other than at its own pass is refused; a next leg
-//!    that does is charged a detour. The best plan replaces the current one only when it is
+//!    r_C circle, plus `crossing_cost` when the run-in leads over a target still to come (the
+//!    arm would reach across it, the camera look along it). A plan whose route comes within
+//!    `clearance` of a known target (a platform, a container or a button of the mission) other
+//!    than at its own pass is refused; a next leg that does is charged a detour. The best plan replaces the current one only when it is
 //!    shorter by `replan_margin`, so the choice does not flicker. So a target on either side, a
 //!    next target beside or behind (the base turns round the far side, a U-turn), zigzags and
 //!    targets in a row all come from one rule, with no case for any layout.
@@ -123,6 +124,18 @@ pub struct BaseControllerConfig {
     /// Weight of a route's turning in its cost, m per rad: of two routes of about the same
     /// length, the straighter one (the arm reaches more easily from a base that goes straight).
     pub turn_cost: f64,
+    /// Extra length charged to a pass plan whose run-in leads over another of the mission's
+    /// targets still to come, m ([`BaseControllerConfig::crossing_width`]): the arm would reach
+    /// across it and the camera would look along it. Approached end-on from the side where the
+    /// rest of a row still stands, the target's blob merged with its neighbours' and the grasp
+    /// went to a neighbour, or the open fingers swept one off (Exp 2: most failed runs came
+    /// round the row's far end). Passing the row from its cleared end, or across it, costs
+    /// about a metre more at most.
+    pub crossing_cost: f64,
+    /// Half-width of the corridor a run-in leads over, m: a later target within this of the
+    /// line through the target along the pass heading, and before it by at most `run_in`, is
+    /// crossed.
+    pub crossing_width: f64,
     /// A new pass plan replaces the current one only when its route is shorter by this, m.
     pub replan_margin: f64,
     /// The route is planned again when the base is this far off it, or the target this far
@@ -199,6 +212,8 @@ impl Default for BaseControllerConfig {
             look_ahead: 0.4,
             heading_candidates: 16,
             turn_cost: 0.5,
+            crossing_cost: 2.0,
+            crossing_width: 0.3,
             replan_margin: 0.3,
             replan_deviation: 0.3,
             replan_period: 1.0,
@@ -257,6 +272,8 @@ impl BaseControllerConfig {
                 (1..=360).contains(&self.heading_candidates),
             ),
             ("turn_cost", non_negative(self.turn_cost)),
+            ("crossing_cost", non_negative(self.crossing_cost)),
+            ("crossing_width", non_negative(self.crossing_width)),
             ("replan_margin", non_negative(self.replan_margin)),
             ("replan_deviation", positive(self.replan_deviation)),
             ("replan_period", positive(self.replan_period)),
@@ -486,6 +503,9 @@ const GUARD_TURNS: i32 = 6;
 /// check lets the base creep on at this fraction of v_F.
 const GUARD_CREEP: f64 = 0.25;
 
+/// Known positions closer than this are one place, m ([`BaseController::crossing_charge`]).
+const SAME_PLACE: f64 = 0.05;
+
 /// Spacing of the points at which a route is checked against the known targets, m.
 const CLEARANCE_STEP: f64 = 0.1;
 
@@ -594,6 +614,9 @@ struct Ahead {
     /// Per fixed-heading pass plan of the next target: the start of its run-in and the leg on
     /// from its run-out (`None`: its straight is blocked). Empty without a target after it.
     fixed: Vec<Option<(BasePose, f64)>>,
+    /// The known positions of the targets after the next one, in task order: the next
+    /// target's plans are charged for crossing them ([`BaseController::crossing_charge`]).
+    later: Vec<Vector2<f64>>,
 }
 
 /// What the controller drives along this step.
@@ -668,6 +691,8 @@ impl BaseController {
 
     /// The same controller, keeping its routes' footprint clear of the known positions of the
     /// mission's targets (`layout`: platforms, containers and buttons; only x and y are used).
+    /// The layout is in task order (task `k`'s target at index `k`): the targets after the
+    /// current task's are the ones still to come ([`BaseControllerConfig::crossing_cost`]).
     pub fn with_layout(mut self, layout: &[nalgebra::Vector3<f64>]) -> Self {
         self.set_layout(layout);
         self
@@ -811,7 +836,7 @@ impl BaseController {
                 b,
                 next,
                 [after_next, None],
-                &obstacles,
+                (&obstacles, self.later_targets(input.task_index + 2)),
                 self.clock,
             );
             self.next = approach;
@@ -823,7 +848,7 @@ impl BaseController {
                 b,
                 target,
                 [Some(next), after_next],
-                &obstacles,
+                (&obstacles, self.later_targets(input.task_index + 1)),
                 self.clock,
             );
             self.current = approach;
@@ -1069,7 +1094,7 @@ impl BaseController {
         base: &BasePose,
         target: Vector2<f64>,
         ahead: [Option<Vector2<f64>>; 2],
-        obstacles: &[Vector2<f64>],
+        (obstacles, later): (&[Vector2<f64>], &[Vector2<f64>]),
         clock: f64,
     ) -> Route {
         let config = &self.config;
@@ -1097,7 +1122,10 @@ impl BaseController {
         let radius = self.turn_radius();
         // Worked out only when plans are scored, not on the steps that follow the kept route.
         let look_ahead = std::cell::OnceCell::new();
-        let ahead = || look_ahead.get_or_init(|| self.look_ahead(ahead, obstacles, radius));
+        // The targets still to come after the next one (the layout is in task order).
+        let later_next = later.get(1..).unwrap_or_default();
+        let ahead =
+            || look_ahead.get_or_init(|| self.look_ahead(ahead, obstacles, later_next, radius));
         // Follow the kept route while it is valid.
         let mut kept_cost = None;
         if let (Some(route), Some(plan)) = (&mut approach.route, approach.plan) {
@@ -1140,6 +1168,7 @@ impl BaseController {
                         + config.turn_cost * rest.turning()
                         + config.run_in
                         + config.run_out
+                        + self.crossing_charge(&plan, target, later)
                         + self.next_leg(&along(&pass, config.run_out), ahead(), obstacles, radius),
                 );
             }
@@ -1148,7 +1177,9 @@ impl BaseController {
         self.plan_searches.set(self.plan_searches.get() + 1);
         let mut best: Option<(PassPlan, f64)> = None;
         for plan in &candidates {
-            if let Some(cost) = self.score(base, target, ahead(), plan, obstacles, radius)
+            if let Some(cost) = self
+                .score(base, target, ahead(), plan, obstacles, radius)
+                .map(|cost| cost + self.crossing_charge(plan, target, later))
                 && best.is_none_or(|(_, c)| cost < c)
             {
                 best = Some((*plan, cost));
@@ -1215,6 +1246,36 @@ impl BaseController {
                 Route::Line(pass)
             }
         }
+    }
+
+    /// The known positions of the mission's targets from task `first` on (the layout is in
+    /// task order): the ones still to come.
+    fn later_targets(&self, first: usize) -> &[Vector2<f64>] {
+        self.layout.get(first..).unwrap_or_default()
+    }
+
+    /// [`BaseControllerConfig::crossing_cost`] when `plan`'s run-in to `target` leads over one
+    /// of the `later` targets (within `crossing_width` of the line through the target along
+    /// the pass heading, and before it by at most `run_in`), else 0. A later target at the
+    /// target's own place (a place back where the pick was) is not another one.
+    fn crossing_charge(
+        &self,
+        plan: &PassPlan,
+        target: Vector2<f64>,
+        later: &[Vector2<f64>],
+    ) -> f64 {
+        let config = &self.config;
+        let direction = Vector2::new(plan.heading.cos(), plan.heading.sin());
+        let crossed = later.iter().any(|p| {
+            let offset = p - target;
+            let before = -offset.dot(&direction);
+            let aside = offset.perp(&direction).abs();
+            offset.norm() > SAME_PLACE
+                && before > 0.0
+                && before <= config.run_in
+                && aside <= config.crossing_width
+        });
+        if crossed { config.crossing_cost } else { 0.0 }
     }
 
     /// The start of `plan`'s run-in for a target at `target`: `run_in` before ξ_C.
@@ -1343,30 +1404,34 @@ impl BaseController {
         &self,
         ahead: [Option<Vector2<f64>>; 2],
         obstacles: &[Vector2<f64>],
+        later: &[Vector2<f64>],
         radius: f64,
     ) -> Ahead {
         let fixed = match ahead {
             [Some(next), Some(after)] => [PassSide::Left, PassSide::Right]
                 .into_iter()
                 .flat_map(|side| self.fixed_plans(side))
-                .map(|plan| self.pass_on(&plan, next, after, obstacles, radius))
+                .map(|plan| self.pass_on(&plan, next, after, obstacles, later, radius))
                 .collect(),
             _ => Vec::new(),
         };
         Ahead {
             targets: ahead,
             fixed,
+            later: later.to_vec(),
         }
     }
 
     /// For `plan` past `next`: the start of its run-in and the leg from the end of its run-out
-    /// on to `after`, or `None` when its straight comes within clearance of a known target.
+    /// on to `after` (with the plan's crossing charge for the targets `later` than `next`), or
+    /// `None` when its straight comes within clearance of a known target.
     fn pass_on(
         &self,
         plan: &PassPlan,
         next: Vector2<f64>,
         after: Vector2<f64>,
         obstacles: &[Vector2<f64>],
+        later: &[Vector2<f64>],
         radius: f64,
     ) -> Option<(BasePose, f64)> {
         let straight = self.config.run_in + self.config.run_out;
@@ -1375,7 +1440,11 @@ impl BaseController {
             return None;
         }
         let on = along(&start, straight);
-        Some((start, self.tangent_leg(&on, after, obstacles, radius)))
+        let crossing = self.crossing_charge(plan, next, later);
+        Some((
+            start,
+            crossing + self.tangent_leg(&on, after, obstacles, radius),
+        ))
     }
 
     /// The cost of the way on from `out` (the end of a run-out) past the targets `ahead`:
@@ -1403,7 +1472,7 @@ impl BaseController {
         let tangents = [PassSide::Left, PassSide::Right]
             .into_iter()
             .filter_map(|side| self.tangent_plan(out, next, side))
-            .map(|plan| self.pass_on(&plan, next, after, obstacles, radius));
+            .map(|plan| self.pass_on(&plan, next, after, obstacles, &ahead.later, radius));
         tangents
             .chain(ahead.fixed.iter().copied())
             .flatten()
@@ -2424,6 +2493,70 @@ mod tests {
         assert!(done, "{closest:?}");
         assert!(closest.iter().all(|d| (d - 0.6).abs() < 0.1), "{closest:?}");
         assert!(nearest > 0.45, "came within {nearest:.3} m of a platform");
+    }
+
+    #[test]
+    fn a_run_in_over_a_target_still_to_come_is_charged() {
+        let controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let target = Vector2::new(0.0, 0.0);
+        let north = PassPlan {
+            side: PassSide::Left,
+            heading: FRAC_PI_2,
+        };
+        let charge = |plan: &PassPlan, later: &[Vector2<f64>]| {
+            controller.crossing_charge(plan, target, later)
+        };
+        // Before the target on the run-in, within the corridor: charged.
+        assert_eq!(charge(&north, &[Vector2::new(0.1, -0.5)]), 2.0);
+        // Beside the corridor, beyond the run-in, after the target, or at its own place: not.
+        assert_eq!(charge(&north, &[Vector2::new(0.4, -0.5)]), 0.0);
+        assert_eq!(charge(&north, &[Vector2::new(0.0, -1.2)]), 0.0);
+        assert_eq!(charge(&north, &[Vector2::new(0.0, 0.5)]), 0.0);
+        assert_eq!(charge(&north, &[Vector2::new(0.0, -0.02)]), 0.0);
+        // Heading across the row, the same cube is abeam: not charged.
+        let east = PassPlan {
+            side: PassSide::Left,
+            heading: 0.0,
+        };
+        assert_eq!(charge(&east, &[Vector2::new(0.0, -0.12)]), 0.0);
+    }
+
+    #[test]
+    fn a_row_is_approached_from_its_cleared_end_when_the_detour_costs_less_than_the_charge() {
+        // Three cubes in a row along y, picked north to south; the base starts south of the
+        // row heading north. Straight on, the run-in to the first (north) cube leads over the
+        // two still to come. Coming round to pass it from the cleared end costs a few metres:
+        // with a charge above that the base comes round; without one it goes straight on.
+        let row: Vec<Vector3<f64>> = (0..3)
+            .map(|k| Vector3::new(0.0, -0.12 * k as f64, 0.45))
+            .collect();
+        let heading_for = |crossing_cost: f64, task: usize| {
+            let config = BaseControllerConfig {
+                crossing_cost,
+                ..BaseControllerConfig::default()
+            };
+            let mut controller = BaseController::new(config, frankie_like()).with_layout(&row);
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: task,
+                    base: BasePose::new(0.6, -3.0, FRAC_PI_2),
+                    target: TargetEstimate::fixed(row[task]),
+                    next_target: row.get(task + 1).copied().unwrap_or(row[task]),
+                    after_next: row.get(task + 2).copied(),
+                    dt: DT,
+                })
+                .unwrap();
+            out.closest_approach.yaw
+        };
+        let straight_on = heading_for(0.0, 0);
+        assert!(
+            straight_on.sin() > 0.9,
+            "heading {straight_on:.2} without the charge"
+        );
+        let around = heading_for(8.0, 0);
+        assert!(around.sin() < 0.4, "heading {around:.2} leads over the row");
+        // The last cube has none still to come: the charge changes nothing.
+        assert_eq!(heading_for(8.0, 2), heading_for(0.0, 2));
     }
 
     #[test]
