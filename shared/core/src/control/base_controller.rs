@@ -503,6 +503,11 @@ const GUARD_TURNS: i32 = 6;
 /// check lets the base creep on at this fraction of v_F.
 const GUARD_CREEP: f64 = 0.25;
 
+/// A base wedged (no command forward or on the spot clear) backs out this far, straight back
+/// where that is clear, before it drives on again, m: backing out only until a forward
+/// command cleared, it drove straight back into the wedge.
+const BACK_OUT_DISTANCE: f64 = 0.3;
+
 /// Known positions closer than this are one place, m ([`BaseController::crossing_charge`]).
 const SAME_PLACE: f64 = 0.05;
 
@@ -654,6 +659,8 @@ pub struct BaseController {
     rearm: bool,
     /// While every route is blocked: the direction the base turns on the spot (+1 left).
     blocked_turn: Option<f64>,
+    /// How much farther a wedged base backs out, m ([`BACK_OUT_DISTANCE`]).
+    backing_out: f64,
     /// Times the pass plans were scored (the planner's costly search).
     plan_searches: std::cell::Cell<u64>,
 }
@@ -679,6 +686,7 @@ impl BaseController {
             lingered: 0.0,
             rearm: false,
             blocked_turn: None,
+            backing_out: 0.0,
             plan_searches: std::cell::Cell::new(0),
         }
     }
@@ -952,8 +960,15 @@ impl BaseController {
             self.blocked_turn = None;
             (speed, pursue(b, point, speed))
         };
-        let (speed, wanted_omega) = {
+        let backing = (self.backing_out > 0.0)
+            .then(|| self.back_out(b, &obstacles))
+            .flatten();
+        let (speed, wanted_omega) = if let Some((speed, omega)) = backing {
+            self.backing_out -= speed.abs() * input.dt.max(0.0);
+            (speed, omega)
+        } else {
             let (speed, guarded) = self.guard(b, speed, wanted_omega, &obstacles);
+            self.backing_out = if speed < 0.0 { BACK_OUT_DISTANCE } else { 0.0 };
             // A blocked base whose turn the check refuses turns the other way round: kept, the
             // refused turn and the check's nearest clear one, the other way, alternated from
             // cycle to cycle, and the base stood wedged beside Exp 2's row (seed 28, 770 s).
@@ -975,7 +990,7 @@ impl BaseController {
         let (time_to_range, range_entry_pose) = if self.passed {
             (0.0, *b)
         } else {
-            self.time_to_range(b, &route, &input.target, speed)
+            self.time_to_range(b, &route, &input.target, speed.max(0.0))
         };
 
         Ok(BaseControllerOutput {
@@ -1010,36 +1025,17 @@ impl BaseController {
     /// `(v, ω)`, or the command nearest it that keeps the footprint clear of the known targets
     /// over `guard_horizon` (see [`BaseControllerConfig::guard_horizon`]).
     fn guard(&self, base: &BasePose, v: f64, omega: f64, obstacles: &[Vector2<f64>]) -> (f64, f64) {
-        let horizon = self.config.guard_horizon;
-        if horizon <= 0.0 {
+        if self.config.guard_horizon <= 0.0 {
             return (v, omega);
         }
-        let max_rate = self.model.max_yaw_rate;
-        let acceleration = self
-            .config
-            .yaw_acceleration(self.model.max_yaw_acceleration);
-        let clear = |v: f64, omega: f64| {
-            let steps = (horizon / GUARD_STEP).ceil() as usize;
-            let mut pose = *base;
-            let mut w = self.last_omega;
-            let poses = (0..steps).map(move |_| {
-                w += (omega - w).clamp(-acceleration * GUARD_STEP, acceleration * GUARD_STEP);
-                pose.yaw = wrap_angle(pose.yaw + w * GUARD_STEP);
-                pose.x += v * GUARD_STEP * pose.yaw.cos();
-                pose.y += v * GUARD_STEP * pose.yaw.sin();
-                pose
-            });
-            self.clear_poses(base, v * horizon, obstacles, poses)
-        };
+        let clear = |v: f64, omega: f64| self.clear_command(base, v, omega, obstacles);
         if clear(v, omega) {
             return (v, omega);
         }
-        let mut turns: Vec<f64> = (-GUARD_TURNS..=GUARD_TURNS)
-            .map(|k| max_rate * k as f64 / GUARD_TURNS as f64)
-            .collect();
-        turns.sort_by(|a, b| (a - omega).abs().total_cmp(&(b - omega).abs()));
+        let turns = self.guard_turns(omega);
         // Standing still is always clear, and never a way out: on the spot only a turn counts,
-        // and with no turn clear the base creeps on, as straight as it can.
+        // and with no turn clear the base creeps on, as straight as it can; with no way on
+        // either, it backs out.
         let creep = GUARD_CREEP * self.speed();
         [v, 0.5 * v, 0.0, creep]
             .into_iter()
@@ -1049,7 +1045,55 @@ impl BaseController {
                     .find(|&&w| (speed > 0.0 || w != 0.0) && clear(speed, w))
                     .map(|&w| (speed, w))
             })
+            .or_else(|| self.back_out(base, obstacles))
             .unwrap_or((0.0, 0.0))
+    }
+
+    /// The command that backs a wedged base out at the creep speed, as straight as is clear
+    /// ([`BACK_OUT_DISTANCE`]), or `None` when no way back is clear either.
+    fn back_out(&self, base: &BasePose, obstacles: &[Vector2<f64>]) -> Option<(f64, f64)> {
+        let back = -GUARD_CREEP * self.speed();
+        self.guard_turns(0.0)
+            .into_iter()
+            .find(|&w| self.clear_command(base, back, w, obstacles))
+            .map(|w| (back, w))
+    }
+
+    /// The turn rates the command check tries, nearest `omega` first.
+    fn guard_turns(&self, omega: f64) -> Vec<f64> {
+        let max_rate = self.model.max_yaw_rate;
+        let mut turns: Vec<f64> = (-GUARD_TURNS..=GUARD_TURNS)
+            .map(|k| max_rate * k as f64 / GUARD_TURNS as f64)
+            .collect();
+        turns.sort_by(|a, b| (a - omega).abs().total_cmp(&(b - omega).abs()));
+        turns
+    }
+
+    /// Whether `(v, ω)` from `base`, with ω ramping to it at the yaw acceleration limit, keeps
+    /// the footprint `clearance` from every known target (or no closer than now) over
+    /// `guard_horizon`.
+    fn clear_command(
+        &self,
+        base: &BasePose,
+        v: f64,
+        omega: f64,
+        obstacles: &[Vector2<f64>],
+    ) -> bool {
+        let horizon = self.config.guard_horizon;
+        let acceleration = self
+            .config
+            .yaw_acceleration(self.model.max_yaw_acceleration);
+        let steps = (horizon / GUARD_STEP).ceil() as usize;
+        let mut pose = *base;
+        let mut w = self.last_omega;
+        let poses = (0..steps).map(move |_| {
+            w += (omega - w).clamp(-acceleration * GUARD_STEP, acceleration * GUARD_STEP);
+            pose.yaw = wrap_angle(pose.yaw + w * GUARD_STEP);
+            pose.x += v * GUARD_STEP * pose.yaw.cos();
+            pose.y += v * GUARD_STEP * pose.yaw.sin();
+            pose
+        });
+        self.clear_poses(base, v.abs() * horizon, obstacles, poses)
     }
 
     /// Gives up the current pass (see [`BaseController::missed_passes`]); after the reactive
@@ -2027,14 +2071,66 @@ mod tests {
         let (v, omega) = controller.guard(&base, 0.3, 0.0, &aside);
         assert!(v == 0.3 && omega < 0.0, "({v}, {omega})");
         // Pressed against it, where a turn on the spot or creeping on would bring a corner
-        // closer, the base stands.
+        // closer, the base backs out straight at the creep speed; with another known target
+        // close behind it too, it stands.
         let touching = [Vector2::new(0.6, 0.0)];
-        assert_eq!(controller.guard(&base, 0.3, 0.0, &touching), (0.0, 0.0));
+        let creep = GUARD_CREEP * 0.3;
+        assert_eq!(controller.guard(&base, 0.3, 0.0, &touching), (-creep, 0.0));
+        let sandwiched = [Vector2::new(0.6, 0.0), Vector2::new(-0.6, 0.0)];
+        assert_eq!(controller.guard(&base, 0.3, 0.0, &sandwiched), (0.0, 0.0));
         // Beside it, stopped and asked to turn toward it, the base turns on the spot no faster
         // than keeps the front corner clear within the second; never not at all.
         let beside = [Vector2::new(0.2, 0.55)];
         let (v, omega) = controller.guard(&base, 0.0, 0.5, &beside);
         assert!(v == 0.0 && omega != 0.0 && omega < 0.5, "({v}, {omega})");
+    }
+
+    #[test]
+    fn a_wedged_base_backs_out_its_distance_and_then_drives_on() {
+        // A platform pressed against the front of the base, the target beyond it: no command
+        // forward or on the spot is clear. The base backs out BACK_OUT_DISTANCE, straight,
+        // before it drives on, round the platform and past the target at r_C; backing out
+        // only until a forward command cleared, it drove straight back in.
+        let platform = Vector3::new(0.6, 0.0, 0.45);
+        let target = Vector3::new(2.5, 0.0, 0.45);
+        let mut controller = BaseController::new(BaseControllerConfig::default(), frankie_like())
+            .with_layout(&[platform, target]);
+        let mut base = BasePose::new(0.0, 0.0, 0.0);
+        let mut backed = 0.0;
+        let mut drove_on = false;
+        let mut closest = f64::INFINITY;
+        for step in 0..(16.0 / DT) as usize {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 1,
+                    base,
+                    target: TargetEstimate::fixed(target),
+                    next_target: target,
+                    after_next: None,
+                    dt: DT,
+                })
+                .unwrap();
+            if step == 0 {
+                assert!(out.command.v < 0.0, "{:?}", out.command);
+            }
+            if out.command.v < 0.0 {
+                assert!(!drove_on, "backed out again after driving on");
+                backed -= out.command.v * DT;
+            } else if out.command.v > 0.0 {
+                drove_on = true;
+            }
+            integrate(&mut base, out.command, DT);
+            closest = closest.min((xy(&target) - Vector2::new(base.x, base.y)).norm());
+        }
+        assert!(
+            (backed - BACK_OUT_DISTANCE).abs() < 0.02,
+            "backed out {backed:.3} m"
+        );
+        assert!(drove_on);
+        assert!(
+            (closest - 0.6).abs() < 0.1,
+            "passed {closest:.3} m from the target"
+        );
     }
 
     #[test]
