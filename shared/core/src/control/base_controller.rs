@@ -15,8 +15,9 @@
 //!    r_C circle, plus `crossing_cost` when the run-in leads over a target still to come (the
 //!    arm would reach across it, the camera look along it). A plan whose route comes within
 //!    `clearance` of a known target (a platform, a container or a button of the mission) other
-//!    than at its own pass is refused; a next leg that does is charged a detour. The best plan replaces the current one only when it is
-//!    shorter by `replan_margin`, so the choice does not flicker. So a target on either side, a
+//!    than at its own pass is refused; a next leg that does is charged a detour. The best plan
+//!    replaces the current one only when it is shorter by `replan_margin`, so the choice does
+//!    not flicker. So a target on either side, a
 //!    next target beside or behind (the base turns round the far side, a U-turn), zigzags and
 //!    targets in a row all come from one rule, with no case for any layout.
 //! 3. **Commitment.** Once the base is on the run-in (within `run_in_tolerance` of its line,
@@ -1324,9 +1325,7 @@ impl BaseController {
         self.plan_searches.set(self.plan_searches.get() + 1);
         let mut best: Option<(PassPlan, f64)> = None;
         for plan in &candidates {
-            if let Some(cost) = self
-                .score(base, target, ahead(), plan, obstacles, radius)
-                .map(|cost| cost + self.crossing_charge(plan, target, later))
+            if let Some(cost) = self.score(base, target, ahead(), plan, (obstacles, later), radius)
                 && best.is_none_or(|(_, c)| cost < c)
             {
                 best = Some((*plan, cost));
@@ -1472,16 +1471,17 @@ impl BaseController {
             .unwrap_or_else(|| DubinsPath::shortest(base, &start, radius))
     }
 
-    /// The length of the route past `target` with `plan` and on toward the targets `ahead`, or
-    /// `None` when the route to ξ_C or its run-in and run-out come within `clearance` of a known
-    /// target.
+    /// The length of the route past `target` with `plan` and on toward the targets `ahead`,
+    /// plus its crossing charge for the targets `later` ([`BaseController::crossing_charge`]),
+    /// or `None` when the route to ξ_C or its run-in and run-out come within `clearance` of a
+    /// known target.
     fn score(
         &self,
         base: &BasePose,
         target: Vector2<f64>,
         ahead: &Ahead,
         plan: &PassPlan,
-        obstacles: &[Vector2<f64>],
+        (obstacles, later): (&[Vector2<f64>], &[Vector2<f64>]),
         radius: f64,
     ) -> Option<f64> {
         let config = &self.config;
@@ -1502,7 +1502,7 @@ impl BaseController {
             path.length() + config.turn_cost * path.turning() + straight
         };
         cost += self.next_leg(&along(&pass, config.run_out), ahead, obstacles, radius);
-        Some(cost)
+        Some(cost + self.crossing_charge(plan, target, later))
     }
 
     /// The pass plans tried for a target at `target` from `from`: on each side, the heading of
