@@ -70,7 +70,7 @@ struct TasksArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Print one JSON object: `{"tasks": [{"name", "steps", "median_us", "p99_us",
-    /// "max_us"}], ...}`.
+    /// "max_us", "over_period"}], ...}` (`over_period`: steps longer than the control period).
     #[arg(long)]
     json: bool,
 }
@@ -92,6 +92,8 @@ fn run_tasks(config_dir: &Path, args: &TasksArgs) -> Result<(), String> {
         true,
     )?;
     let trace = trace.ok_or("the trial kept no trace")?;
+    // A step longer than the control period would miss its deadline in the deployed stack.
+    let period_ns = 1e9 / config.control_rate_hz;
     let rows: Vec<_> = trace
         .step_ns
         .iter()
@@ -99,8 +101,10 @@ fn run_tasks(config_dir: &Path, args: &TasksArgs) -> Result<(), String> {
         .map(|(name, times)| {
             let mut us: Vec<f64> = times.iter().map(|&ns| ns as f64 / 1e3).collect();
             let steps = us.len();
+            let over = times.iter().filter(|&&ns| ns as f64 > period_ns).count();
             let (median, p99, max) = summarize(&mut us);
-            json!({"name": name, "steps": steps, "median_us": median, "p99_us": p99, "max_us": max})
+            json!({"name": name, "steps": steps, "median_us": median, "p99_us": p99, "max_us": max,
+                   "over_period": over})
         })
         .collect();
     if args.json {
@@ -110,17 +114,21 @@ fn run_tasks(config_dir: &Path, args: &TasksArgs) -> Result<(), String> {
         );
     } else {
         println!(
-            "step compute time per task, {} seed {} (one in-process trial):",
-            scenario.name, args.seed
+            "step compute time per task, {} seed {} (one in-process trial; over: steps longer \
+             than the {:.1} ms control period):",
+            scenario.name,
+            args.seed,
+            period_ns / 1e6
         );
         for row in &rows {
             println!(
-                "  {:<13} {:>6} steps: median {:>7.1} µs, p99 {:>7.1} µs, max {:>8.1} µs",
+                "  {:<13} {:>6} steps: median {:>7.1} µs, p99 {:>7.1} µs, max {:>8.1} µs, over {}",
                 row["name"].as_str().unwrap_or(""),
                 row["steps"],
                 row["median_us"].as_f64().unwrap_or(0.0),
                 row["p99_us"].as_f64().unwrap_or(0.0),
                 row["max_us"].as_f64().unwrap_or(0.0),
+                row["over_period"],
             );
         }
     }

@@ -1682,28 +1682,54 @@ impl BaseController {
 
     /// Whether the base's footprint keeps clear of every obstacle all along `path`.
     fn clear_path(&self, path: &DubinsPath, obstacles: &[Vector2<f64>]) -> bool {
-        let length = path.length();
-        let steps = (length / CLEARANCE_STEP).ceil() as usize;
         let sampler = path.sampler();
-        self.clear_poses(
-            &path.start,
-            length,
-            obstacles,
-            (0..=steps).map(|k| sampler.sample(k as f64 * CLEARANCE_STEP)),
-        )
+        // On an arc the footprint's far corner moves by 1 + |corner| / radius per metre driven.
+        let rate = 1.0 + self.model.half_extents.norm() / path.radius.max(1e-6);
+        self.clear_sweep(&path.start, path.length(), rate, obstacles, |s| {
+            sampler.sample(s)
+        })
     }
 
     /// Whether the base's footprint keeps clear of every obstacle along the straight line
     /// `length` long from `start`.
     fn clear_line(&self, start: &BasePose, length: f64, obstacles: &[Vector2<f64>]) -> bool {
         let length = length.max(0.0);
+        self.clear_sweep(start, length, 1.0, obstacles, |s| {
+            along(start, s.min(length))
+        })
+    }
+
+    /// Whether the footprint is clear ([`BaseController::clear_poses`]) at every
+    /// `CLEARANCE_STEP` along a route `length` long from `start` (the last sample at or up to a
+    /// step past its end), its pose at arc length `s` being `pose_at(s)`, on which no point of the footprint moves faster than `rate` m per
+    /// metre driven. Samples that cannot be closer than the clear one before them (its
+    /// margin over its threshold, divided by `rate`, reaches past them) are not worked out:
+    /// the answer is that of checking every sample, at a fraction of the cost where the
+    /// obstacles are far.
+    fn clear_sweep(
+        &self,
+        start: &BasePose,
+        length: f64,
+        rate: f64,
+        obstacles: &[Vector2<f64>],
+        pose_at: impl Fn(f64) -> BasePose,
+    ) -> bool {
+        let near = self.near_obstacles(start, length, obstacles);
         let steps = (length / CLEARANCE_STEP).ceil() as usize;
-        self.clear_poses(
-            start,
-            length,
-            obstacles,
-            (0..=steps).map(|k| along(start, (k as f64 * CLEARANCE_STEP).min(length))),
-        )
+        let mut k = 0;
+        while k <= steps {
+            let s = k as f64 * CLEARANCE_STEP;
+            let Some(margin) = self.footprint_margin(&pose_at(s), &near) else {
+                return false;
+            };
+            // Every pose up to `free` further on keeps a margin of at least 0.
+            let free = (margin - 1e-9).max(0.0) / rate;
+            if !free.is_finite() {
+                return true;
+            }
+            k = (((s + free) / CLEARANCE_STEP).floor() as usize + 1).max(k + 1);
+        }
+        true
     }
 
     /// Whether, at every one of `poses` (a route `length` long from `start`), the footprint is
@@ -1716,19 +1742,39 @@ impl BaseController {
         obstacles: &[Vector2<f64>],
         mut poses: impl Iterator<Item = BasePose>,
     ) -> bool {
+        let near = self.near_obstacles(start, length, obstacles);
+        poses.all(|pose| self.footprint_margin(&pose, &near).is_some())
+    }
+
+    /// The obstacles a route `length` long from `start` could come within
+    /// `obstacle_radius + clearance` of, each with the footprint distance it must keep: that
+    /// one, or at least (1 mm short of) its distance at `start`.
+    fn near_obstacles(
+        &self,
+        start: &BasePose,
+        length: f64,
+        obstacles: &[Vector2<f64>],
+    ) -> Vec<(Vector2<f64>, f64)> {
         let required = self.config.obstacle_radius + self.config.clearance;
         let reach = length + required + self.model.half_extents.norm();
         let origin = Vector2::new(start.x, start.y);
-        let near: Vec<(Vector2<f64>, f64)> = obstacles
+        obstacles
             .iter()
             .filter(|o| (*o - origin).norm() <= reach)
-            .map(|o| (*o, self.footprint_distance(start, o)))
-            .collect();
-        poses.all(|pose| {
-            near.iter().all(|(o, at_start)| {
-                let d = self.footprint_distance(&pose, o);
-                d >= required || d >= at_start - 1e-3
+            .map(|o| {
+                let at_start = self.footprint_distance(start, o);
+                (*o, required.min(at_start - 1e-3))
             })
+            .collect()
+    }
+
+    /// The smallest margin of the footprint at `pose` over the distances the `near` obstacles
+    /// must keep ([`BaseController::near_obstacles`]), or `None` when one is closer.
+    fn footprint_margin(&self, pose: &BasePose, near: &[(Vector2<f64>, f64)]) -> Option<f64> {
+        let (sin, cos) = pose.yaw.sin_cos();
+        near.iter().try_fold(f64::INFINITY, |margin, (o, keep)| {
+            let d = self.footprint_distance_rotated(pose, sin, cos, o);
+            (d >= *keep).then_some(margin.min(d - keep))
         })
     }
 
@@ -1736,6 +1782,17 @@ impl BaseController {
     /// `pose` to the point `o`, m (0 inside).
     fn footprint_distance(&self, pose: &BasePose, o: &Vector2<f64>) -> f64 {
         let (sin, cos) = pose.yaw.sin_cos();
+        self.footprint_distance_rotated(pose, sin, cos, o)
+    }
+
+    /// [`BaseController::footprint_distance`] with the sine and cosine of `pose.yaw` given.
+    fn footprint_distance_rotated(
+        &self,
+        pose: &BasePose,
+        sin: f64,
+        cos: f64,
+        o: &Vector2<f64>,
+    ) -> f64 {
         let d = o - Vector2::new(pose.x, pose.y);
         let local = Vector2::new(d.x * cos + d.y * sin, -d.x * sin + d.y * cos);
         let half = self.model.half_extents;
@@ -2268,6 +2325,48 @@ mod tests {
         // the second, not two hundred.
         let searches = controller.plan_searches();
         assert!((4..=5).contains(&searches), "{searches} searches in 1 s");
+    }
+
+    #[test]
+    fn the_clearance_sweep_agrees_with_checking_every_sample() {
+        use rand::{RngExt, SeedableRng};
+        let controller = BaseController::new(BaseControllerConfig::default(), frankie_like());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let point = |rng: &mut rand_chacha::ChaCha8Rng, half: f64| {
+            Vector2::new(rng.random_range(-half..half), rng.random_range(-half..half))
+        };
+        let (mut clear, mut blocked) = (0, 0);
+        for _ in 0..300 {
+            let (a, b) = (point(&mut rng, 2.0), point(&mut rng, 2.0));
+            let start = BasePose::new(a.x, a.y, rng.random_range(-3.2..3.2));
+            let goal = BasePose::new(b.x, b.y, rng.random_range(-3.2..3.2));
+            let obstacles: Vec<_> = (0..6).map(|_| point(&mut rng, 3.0)).collect();
+            let radius = rng.random_range(0.3..1.2);
+            for path in DubinsPath::words_after(&start, rng.random_range(0.0..1.0), &goal, radius) {
+                let length = path.length();
+                let sampler = path.sampler();
+                let steps = (length / CLEARANCE_STEP).ceil() as usize;
+                let every = (0..=steps).map(|k| sampler.sample(k as f64 * CLEARANCE_STEP));
+                let expected = controller.clear_poses(&path.start, length, &obstacles, every);
+                assert_eq!(
+                    controller.clear_path(&path, &obstacles),
+                    expected,
+                    "{path:?}"
+                );
+                let line = controller.clear_poses(
+                    &start,
+                    length,
+                    &obstacles,
+                    (0..=steps).map(|k| along(&start, (k as f64 * CLEARANCE_STEP).min(length))),
+                );
+                assert_eq!(controller.clear_line(&start, length, &obstacles), line);
+                if expected { clear += 1 } else { blocked += 1 }
+            }
+        }
+        assert!(
+            clear > 100 && blocked > 100,
+            "{clear} clear, {blocked} blocked"
+        );
     }
 
     #[test]
