@@ -57,8 +57,9 @@ pub struct ReacherConfig {
     /// The reacher aims this far straight above the object (the pre-grasp point), m. The
     /// final-phase controller descends the rest, so the approach ends from above and the fingers
     /// do not sweep into the cube. It must be smaller than the final-phase hand-over distance
-    /// d_T (0.1 m), or the hand-over would never happen. 0.05 m: the fingertips reach 5 mm below
-    /// the tool point, so they clear a 30 mm cube's top by 3 cm at the pre-grasp point.
+    /// d_T (0.1 m), or the hand-over would never happen. 0.065 m: the fingertips reach 5 mm
+    /// below the tool point, so they clear a 30 mm cube's top by 4.5 cm at the pre-grasp point,
+    /// room for the 3–4.5 cm a Fetch or UR5 tool sinks below its command at the hand-over.
     pub pregrasp_height: f64,
     /// Shortest trajectory duration T, s, so that a trajectory that is almost done does not
     /// demand a huge velocity.
@@ -117,7 +118,7 @@ impl Default for ReacherConfig {
     fn default() -> Self {
         Self {
             arm_speed_ratio: 0.8,
-            pregrasp_height: 0.05,
+            pregrasp_height: 0.065,
             min_duration: 0.2,
             min_base_speed: 0.05,
             hold_gain: 2.0,
@@ -1020,7 +1021,10 @@ mod tests {
         assert!(linear.norm() > 0.0);
         // Starting from rest, a quintic's velocity at t = 0 is zero: the command is not that.
         assert!(
-            (out.goal.translation.vector - (target.position + Vector3::z() * 0.05)).norm() < 1e-12
+            (out.goal.translation.vector
+                - (target.position + Vector3::z() * ReacherConfig::default().pregrasp_height))
+                .norm()
+                < 1e-12
         );
     }
 
