@@ -77,8 +77,8 @@ struct TasksArgs {
 
 /// `motm bench tasks`.
 fn run_tasks(config_dir: &Path, args: &TasksArgs) -> Result<(), String> {
-    let (robot, scenario) =
-        crate::trial::load(config_dir, &args.scenario, None).map_err(|e| e.to_string())?;
+    let (robot, scenario) = crate::trial::load(config_dir, &args.scenario, None, args.seed)
+        .map_err(|e| e.to_string())?;
     let config = motm_sim::runner::RunnerConfig {
         time_steps: true,
         ..crate::trial::runner_config(config_dir, None).map_err(|e| e.to_string())?

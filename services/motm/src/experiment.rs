@@ -1,4 +1,4 @@
-//! `motm experiment exp1|exp2|platforms|all`: the paper's experiments in-process, trials spread
+//! `motm experiment exp1|exp2|platforms|missions|generated|all`: the paper's experiments in-process, trials spread
 //! over the available cores, with a progress bar, tables on stdout and result files under `--out`.
 
 use std::path::{Path, PathBuf};
@@ -16,7 +16,8 @@ use crate::{plots, report, trial};
 /// Arguments of `motm experiment`.
 #[derive(Args, Debug)]
 pub struct ExperimentArgs {
-    /// Which experiment: exp1, exp2, platforms, missions or all.
+    /// Which experiment: exp1, exp2, platforms, missions, generated (layouts drawn from each
+    /// trial's seed, per robot) or all (every one but generated).
     pub which: String,
     /// Trials per table row.
     #[arg(long, default_value_t = 20)]

@@ -224,7 +224,8 @@ pub fn run(config_dir: &Path, args: &ReplayArgs) -> Result<(), CliError> {
         motm_bus::say!("motm replay: {truncated} cycle records lost samples that did not fit");
     }
     let scenario_arg = info.scenario.to_string_lossy().into_owned();
-    let (robot, scenario) = crate::trial::load(config_dir, &scenario_arg, Some(info.base_speed))?;
+    let (robot, scenario) =
+        crate::trial::load(config_dir, &scenario_arg, Some(info.base_speed), info.seed)?;
     // The gains to replay with: `--config`, else the ones the trial ran with by default.
     let config = crate::trial::runner_config(config_dir, args.config.as_deref())?;
     let tasks = replay_log(

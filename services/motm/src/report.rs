@@ -13,7 +13,7 @@ pub fn markdown(rows: &[TableRow], filter_description: &str) -> String {
         out,
         "Simulated trials with the default (realistic) noise. EE acceleration: {filter_description}.\n"
     );
-    for experiment in ["exp1", "exp2", "platforms", "missions"] {
+    for experiment in ["exp1", "exp2", "platforms", "missions", "generated"] {
         let selected: Vec<&TableRow> = rows.iter().filter(|r| r.experiment == experiment).collect();
         if selected.is_empty() {
             continue;
@@ -48,7 +48,7 @@ pub fn markdown(rows: &[TableRow], filter_description: &str) -> String {
                 row.mtph,
                 row.ee_acc_mean,
                 row.ee_acc_max,
-                if matches!(row.experiment, "exp2" | "missions") {
+                if matches!(row.experiment, "exp2" | "missions" | "generated") {
                     format!("{:.1}", row.round_trip_s)
                 } else {
                     "–".into()
@@ -73,6 +73,9 @@ fn title(experiment: &str) -> &'static str {
         "exp2" => "Exp 2: ten objects in a row, each placed 3 m away",
         "missions" => {
             "Mission library: multi-task layouts (round trip: mean time per pick and place)"
+        }
+        "generated" => {
+            "Generated layouts: 2-4 picks and places (and a press), one layout per seed, 2 m apart"
         }
         _ => "Platforms: task time and acceleration against base speed",
     }
@@ -99,6 +102,7 @@ fn paper_columns(row: &TableRow) -> String {
                 "{:.2} | {}/10 | – | – | –",
                 p.dynamic_task_time_s, p.dynamic_successes
             ),
+            ObjectMotion::Mixed => "– | – | – | – | –".into(),
         },
         _ => "– | – | – | – | –".into(),
     }

@@ -14,7 +14,8 @@ use crate::CliError;
 /// Arguments of `motm trial`.
 #[derive(Args, Debug)]
 pub struct TrialArgs {
-    /// Scenario file (TOML), or the name of one in `<config>/scenarios/`.
+    /// Scenario file (TOML), the name of one in `<config>/scenarios/`, or `generated:<robot>`
+    /// (the generated layout of `--seed`).
     #[arg(long)]
     pub scenario: String,
     /// Control method: motm, reactive or planning.
@@ -57,14 +58,22 @@ pub fn runner_config(
     })
 }
 
-/// Loads a scenario and its robot, with the base speed overridden when given.
+/// Loads a scenario and its robot, with the base speed overridden when given. A generated
+/// layout (`generated:<robot>`, [`motm_sim::generated`]) is the one of `seed`.
 pub fn load(
     config_dir: &Path,
     scenario: &str,
     base_speed: Option<f64>,
+    seed: u64,
 ) -> Result<(Robot, Scenario), CliError> {
-    let path = scenario_path(config_dir, scenario);
-    let mut scenario = Scenario::from_file(&path).map_err(|e| CliError::BadInput(e.to_string()))?;
+    let parsed = match motm_sim::generated::robot_of(scenario) {
+        Some(robot) => Scenario::from_toml_str(
+            Path::new(scenario),
+            &motm_sim::generated::layout_toml(robot, seed),
+        ),
+        None => Scenario::from_file(&scenario_path(config_dir, scenario)),
+    };
+    let mut scenario = parsed.map_err(|e| CliError::BadInput(e.to_string()))?;
     if let Some(v) = base_speed {
         scenario
             .set_base_speed(v)
@@ -82,13 +91,13 @@ pub fn run_spec(
     config: &RunnerConfig,
     trace: bool,
 ) -> Result<(TrialResult, Option<TrialTrace>), CliError> {
-    let (robot, scenario) = load(config_dir, &spec.scenario, Some(spec.base_speed))?;
+    let (robot, scenario) = load(config_dir, &spec.scenario, Some(spec.base_speed), spec.seed)?;
     run_trial(&robot, &scenario, spec.method, spec.seed, config, trace).map_err(CliError::BadInput)
 }
 
 /// `motm trial`.
 pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
-    let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed)?;
+    let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed, args.seed)?;
     if args.mcap.is_some() && args.method != Method::Motm {
         return Err(CliError::BadInput(format!(
             "--mcap: replay logs are written for --method motm, not {}",

@@ -59,6 +59,8 @@ pub enum ObjectMotion {
     Static,
     /// Objects move along a random smooth path.
     Dynamic,
+    /// Some objects stand still and some move, trial by trial (generated layouts).
+    Mixed,
 }
 
 impl ObjectMotion {
@@ -67,6 +69,7 @@ impl ObjectMotion {
         match self {
             ObjectMotion::Static => "static",
             ObjectMotion::Dynamic => "dynamic",
+            ObjectMotion::Mixed => "mixed",
         }
     }
 }
@@ -223,7 +226,7 @@ pub const CYCLE_COLUMNS: [&str; 33] = [
 /// One row of a results table: the trials of one method, speed, robot and object motion.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TableRow {
-    /// Experiment ("exp1", "exp2", "platforms" or "missions").
+    /// Experiment ("exp1", "exp2", "platforms", "missions" or "generated").
     pub experiment: &'static str,
     /// Scenario name.
     pub scenario: String,
@@ -369,7 +372,8 @@ pub const MISSION_LIBRARY: [(&str, &str); 8] = [
     ("mission-fetch-u-turn", "fetch"),
 ];
 
-/// The trials of an experiment: "exp1", "exp2", "platforms", "missions" or "all".
+/// The trials of an experiment: "exp1", "exp2", "platforms", "missions", "generated" or
+/// "all" (every one but "generated").
 ///
 /// Seeds are `seed + k` for the k-th trial of a row, so every row sees the same object paths.
 pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>, String> {
@@ -395,10 +399,11 @@ pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>
     let wanted = |name: &str| experiment == name || experiment == "all";
     if !matches!(
         experiment,
-        "exp1" | "exp2" | "platforms" | "missions" | "all"
+        "exp1" | "exp2" | "platforms" | "missions" | "generated" | "all"
     ) {
         return Err(format!(
-            "unknown experiment {experiment:?}: expected exp1, exp2, platforms, missions or all"
+            "unknown experiment {experiment:?}: expected exp1, exp2, platforms, missions, \
+             generated or all"
         ));
     }
     if wanted("exp1") {
@@ -455,6 +460,19 @@ pub fn plan(experiment: &str, trials: usize, seed: u64) -> Result<Vec<TrialSpec>
                 Method::Motm,
                 0.3,
                 ObjectMotion::Static,
+            );
+        }
+    }
+    if experiment == "generated" {
+        // One row per robot; trial k runs the layout of its seed ([`crate::generated`]).
+        for robot in PLATFORM_ROBOTS {
+            add(
+                "generated",
+                &format!("{}{robot}", crate::generated::PREFIX),
+                robot,
+                Method::Motm,
+                0.3,
+                ObjectMotion::Mixed,
             );
         }
     }

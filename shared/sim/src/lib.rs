@@ -6,6 +6,7 @@
 //! the same result bit for bit.
 
 pub mod experiment;
+pub mod generated;
 pub mod geometry;
 pub mod grasp;
 pub mod gripper;

@@ -21,6 +21,8 @@ pub enum Stream {
     ObjectMotion = 3,
     /// Camera pixel noise and calibration error (for the renderer).
     Camera = 4,
+    /// A generated mission layout ([`crate::generated`]).
+    Layout = 5,
 }
 
 /// A seeded random number generator for one stream of one trial.
