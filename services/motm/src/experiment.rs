@@ -1,5 +1,6 @@
-//! `motm experiment exp1|exp2|platforms|missions|generated|all`: the paper's experiments in-process, trials spread
-//! over the available cores, with a progress bar, tables on stdout and result files under `--out`.
+//! `motm experiment exp1|exp2|platforms|missions|generated|all`: the paper's experiments
+//! in-process, trials spread over the available cores, with a progress bar, tables on stdout
+//! and result files under `--out`.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

@@ -44,7 +44,8 @@ pub fn layout_toml(robot: &str, seed: u64) -> String {
     }
 }
 
-/// One draw of a layout, or `None` when a target found no free place.
+/// One draw of a layout, or `None` when a target found no free place. (Writing to a `String`
+/// cannot fail.)
 fn draw(robot: &str, seed: u64, rng: &mut SimRng) -> Option<String> {
     let mut taken = vec![[0.0, 0.0]];
     let mut place_near = |rng: &mut SimRng, from: [f64; 2]| {
@@ -66,41 +67,40 @@ fn draw(robot: &str, seed: u64, rng: &mut SimRng) -> Option<String> {
     };
     let mut text = String::new();
     let yaw = rng.uniform_in(-PI, PI);
-    writeln!(text, "name = \"{PREFIX}{robot}:{seed}\"").ok()?;
-    writeln!(text, "robot = \"{robot}\"").ok()?;
-    writeln!(text, "start_pose = [0.0, 0.0, {yaw:.4}]").ok()?;
-    writeln!(text, "base_speed = 0.3").ok()?;
+    let _ = writeln!(text, "name = \"{PREFIX}{robot}:{seed}\"");
+    let _ = writeln!(text, "robot = \"{robot}\"");
+    let _ = writeln!(text, "start_pose = [0.0, 0.0, {yaw:.4}]");
+    let _ = writeln!(text, "base_speed = 0.3");
     let objects = 2 + (rng.uniform() * 3.0) as usize;
     let mut from = [0.0, 0.0];
     for _ in 0..objects {
         let object = place_near(rng, from)?;
         let place = place_near(rng, object)?;
         from = place;
-        writeln!(text, "\n[[objects]]").ok()?;
-        writeln!(
+        let _ = writeln!(text, "\n[[objects]]");
+        let _ = writeln!(
             text,
             "position = [{:.3}, {:.3}, 0.45]",
             object[0], object[1]
-        )
-        .ok()?;
+        );
         let motion = rng.uniform();
         if motion < 0.7 {
-            writeln!(text, "motion = \"static\"").ok()?;
+            let _ = writeln!(text, "motion = \"static\"");
         } else if motion < 0.85 {
             let heading = rng.uniform_in(-PI, PI);
-            writeln!(text, "motion = \"line\"\nspeed = {MOVING_SPEED}").ok()?;
-            writeln!(text, "heading = {heading:.4}").ok()?;
+            let _ = writeln!(text, "motion = \"line\"\nspeed = {MOVING_SPEED}");
+            let _ = writeln!(text, "heading = {heading:.4}");
         } else {
-            writeln!(text, "motion = \"random\"\nspeed = {MOVING_SPEED}").ok()?;
+            let _ = writeln!(text, "motion = \"random\"\nspeed = {MOVING_SPEED}");
         }
-        writeln!(text, "place = [{:.3}, {:.3}, 0.35]", place[0], place[1]).ok()?;
+        let _ = writeln!(text, "place = [{:.3}, {:.3}, 0.35]", place[0], place[1]);
     }
     if rng.uniform() < 0.3 {
         let after = (rng.uniform() * objects as f64) as usize;
         let button = place_near(rng, from)?;
-        writeln!(text, "\n[[buttons]]").ok()?;
-        writeln!(text, "position = [{:.3}, {:.3}, 0.5]", button[0], button[1]).ok()?;
-        writeln!(text, "depth = 0.01\nafter_object = {after}").ok()?;
+        let _ = writeln!(text, "\n[[buttons]]");
+        let _ = writeln!(text, "position = [{:.3}, {:.3}, 0.5]", button[0], button[1]);
+        let _ = writeln!(text, "depth = 0.01\nafter_object = {after}");
     }
     Some(text)
 }

@@ -17,9 +17,9 @@
 //!    `clearance` of a known target (a platform, a container or a button of the mission) other
 //!    than at its own pass is refused; a next leg that does is charged a detour. The best plan
 //!    replaces the current one only when it is shorter by `replan_margin`, so the choice does
-//!    not flicker. So a target on either side, a
-//!    next target beside or behind (the base turns round the far side, a U-turn), zigzags and
-//!    targets in a row all come from one rule, with no case for any layout.
+//!    not flicker. So a target on either side, a next target beside or behind (the base turns
+//!    round the far side, a U-turn), zigzags and targets in a row all come from one rule, with
+//!    no case for any layout.
 //! 3. **Commitment.** Once the base is on the run-in (within `run_in_tolerance` of its line,
 //!    heading along it) the plan is fixed until the target is passed, and the base follows the
 //!    line through the current ξ_C: a moving target moves its line, and the base follows it.
@@ -1701,11 +1701,11 @@ impl BaseController {
 
     /// Whether the footprint is clear ([`BaseController::clear_poses`]) at every
     /// `CLEARANCE_STEP` along a route `length` long from `start` (the last sample at or up to a
-    /// step past its end), its pose at arc length `s` being `pose_at(s)`, on which no point of the footprint moves faster than `rate` m per
-    /// metre driven. Samples that cannot be closer than the clear one before them (its
-    /// margin over its threshold, divided by `rate`, reaches past them) are not worked out:
-    /// the answer is that of checking every sample, at a fraction of the cost where the
-    /// obstacles are far.
+    /// step past its end), its pose at arc length `s` being `pose_at(s)`, on which no point of
+    /// the footprint moves faster than `rate` m per metre driven. Samples that cannot be closer
+    /// than the clear one before them (its margin over its threshold, divided by `rate`,
+    /// reaches past them) are not worked out: the answer is that of checking every sample, at
+    /// a fraction of the cost where the obstacles are far.
     fn clear_sweep(
         &self,
         start: &BasePose,
@@ -1715,6 +1715,9 @@ impl BaseController {
         pose_at: impl Fn(f64) -> BasePose,
     ) -> bool {
         let near = self.near_obstacles(start, length, obstacles);
+        if near.is_empty() {
+            return true;
+        }
         let steps = (length / CLEARANCE_STEP).ceil() as usize;
         let mut k = 0;
         while k <= steps {
@@ -1724,9 +1727,6 @@ impl BaseController {
             };
             // Every pose up to `free` further on keeps a margin of at least 0.
             let free = (margin - 1e-9).max(0.0) / rate;
-            if !free.is_finite() {
-                return true;
-            }
             k = (((s + free) / CLEARANCE_STEP).floor() as usize + 1).max(k + 1);
         }
         true
@@ -2448,10 +2448,10 @@ mod tests {
                     dt: DT,
                 })
                 .unwrap();
-            let arm_base =
-                Vector2::new(base.x, base.y) + Rotation2::new(base.yaw) * Vector2::new(0.15, 0.0);
-            if entered_at.is_none() && (arm_base - Vector2::new(target.x, target.y)).norm() <= 0.75
-            {
+            let model = controller.model();
+            let in_range =
+                (model.arm_base_at(&base) - xy(&target)).norm() <= model.manipulation_range;
+            if entered_at.is_none() && in_range {
                 entered_at = Some(t);
                 assert_eq!(out.time_to_range, 0.0);
             }
@@ -2505,9 +2505,10 @@ mod tests {
                         dt: DT,
                     })
                     .unwrap();
-                let arm_base = Vector2::new(base.x, base.y)
-                    + Rotation2::new(base.yaw) * Vector2::new(0.15, 0.0);
-                if entered_at.is_none() && (arm_base - xy(&target)).norm() <= 0.75 {
+                let model = controller.model();
+                let in_range =
+                    (model.arm_base_at(&base) - xy(&target)).norm() <= model.manipulation_range;
+                if entered_at.is_none() && in_range {
                     entered_at = Some(t);
                 }
                 predictions.push((t, out.time_to_range));
