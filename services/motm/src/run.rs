@@ -31,7 +31,8 @@ pub struct RunArgs {
     /// Stack config: a file, or a name in the config folder (`frankie`, `fetch`, `husky_ur5`).
     #[arg(long, default_value = "frankie")]
     pub config: String,
-    /// Scenario file or name (default: the stack config's `scenario`).
+    /// Scenario file or name, or `generated:<robot>` (the generated layout of the seed;
+    /// default: the stack config's `scenario`).
     #[arg(long)]
     pub scenario: Option<String>,
     /// Base speed v_F, m/s (default: the scenario's `base_speed`).
@@ -367,6 +368,22 @@ pub fn registry_dir() -> PathBuf {
 const BRIDGE_BINARY: &str = "motm-zenoh";
 
 /// Makes sure every binary is there, building it with `$CARGO` when run through Cargo.
+/// The scenario file the services read: the named or given file, or a generated layout
+/// (`generated:<robot>`, the one of `seed`) written to the temporary folder, since every
+/// service loads the scenario from its file.
+fn scenario_file(config_dir: &Path, scenario: &str, seed: u64) -> Result<PathBuf, CliError> {
+    let Some(robot) = motm_sim::generated::robot_of(scenario) else {
+        return Ok(motm_sim::scenario_path(config_dir, scenario));
+    };
+    let path = std::env::temp_dir().join(format!(
+        "motm-generated-{robot}-{seed}-{}.toml",
+        std::process::id()
+    ));
+    std::fs::write(&path, motm_sim::generated::layout_toml(robot, seed))
+        .map_err(|e| CliError::Failed(format!("cannot write {}: {e}", path.display())))?;
+    Ok(path)
+}
+
 fn ensure_binaries(stack: &StackConfig, remote: bool) -> Result<PathBuf, CliError> {
     let dir = binaries::own_dir()
         .map_err(|e| CliError::Failed(format!("cannot find own executable: {e}")))?;
@@ -475,10 +492,12 @@ pub fn run_stack(
     } else {
         Hardware::Sim
     };
-    let scenario_path = motm_sim::scenario_path(
+    let seed = args.seed.unwrap_or(stack.seed);
+    let scenario_path = scenario_file(
         config_dir,
         args.scenario.as_deref().unwrap_or(&stack.scenario),
-    );
+        seed,
+    )?;
     let mut scenario = Scenario::from_file(&scenario_path).map_err(|e| bad(e.to_string()))?;
     if let Some(v) = args.base_speed {
         scenario.set_base_speed(v).map_err(|e| bad(e.to_string()))?;
@@ -563,7 +582,7 @@ pub fn run_stack(
         .arg("--base-speed")
         .arg(scenario.base_speed.to_string())
         .arg("--seed")
-        .arg(args.seed.unwrap_or(stack.seed).to_string())
+        .arg(seed.to_string())
         .arg("--rate")
         .arg(rate.to_string())
         .arg("--bin-dir")
@@ -584,7 +603,7 @@ pub fn run_stack(
                 config_dir,
                 robot: &stack.robot,
                 scenario: &scenario_path,
-                seed: args.seed.unwrap_or(stack.seed),
+                seed,
                 base_speed: scenario.base_speed,
             },
         )?)

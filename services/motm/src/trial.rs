@@ -42,6 +42,10 @@ pub struct TrialArgs {
     /// deployed stack reads).
     #[arg(long)]
     pub controllers: Option<PathBuf>,
+    /// Write the scenario the trial runs (a generated layout's text, or the file's) to this
+    /// TOML file, to read it or run it again with `motm run --scenario`.
+    #[arg(long)]
+    pub save_scenario: Option<PathBuf>,
 }
 
 /// The runner settings with the controller gains of `controllers` (default: the config
@@ -66,14 +70,9 @@ pub fn load(
     base_speed: Option<f64>,
     seed: u64,
 ) -> Result<(Robot, Scenario), CliError> {
-    let parsed = match motm_sim::generated::robot_of(scenario) {
-        Some(robot) => Scenario::from_toml_str(
-            Path::new(scenario),
-            &motm_sim::generated::layout_toml(robot, seed),
-        ),
-        None => Scenario::from_file(&scenario_path(config_dir, scenario)),
-    };
-    let mut scenario = parsed.map_err(|e| CliError::BadInput(e.to_string()))?;
+    let (path, text) = scenario_text(config_dir, scenario, seed)?;
+    let mut scenario =
+        Scenario::from_toml_str(&path, &text).map_err(|e| CliError::BadInput(e.to_string()))?;
     if let Some(v) = base_speed {
         scenario
             .set_base_speed(v)
@@ -82,6 +81,25 @@ pub fn load(
     let robot =
         Robot::load(config_dir, &scenario.robot).map_err(|e| CliError::BadInput(e.to_string()))?;
     Ok((robot, scenario))
+}
+
+/// The path and text of a scenario: a file, a name in `<config>/scenarios/`, or a generated
+/// layout (`generated:<robot>`, the one of `seed`; its path is the name).
+pub fn scenario_text(
+    config_dir: &Path,
+    scenario: &str,
+    seed: u64,
+) -> Result<(PathBuf, String), CliError> {
+    if let Some(robot) = motm_sim::generated::robot_of(scenario) {
+        return Ok((
+            PathBuf::from(scenario),
+            motm_sim::generated::layout_toml(robot, seed),
+        ));
+    }
+    let path = scenario_path(config_dir, scenario);
+    let text = motm_core::ModelError::read_to_string(&path)
+        .map_err(|e| CliError::BadInput(e.to_string()))?;
+    Ok((path, text))
 }
 
 /// Runs the trial an experiment spec describes.
@@ -98,6 +116,11 @@ pub fn run_spec(
 /// `motm trial`.
 pub fn run(config_dir: &Path, args: &TrialArgs) -> Result<(), CliError> {
     let (robot, scenario) = load(config_dir, &args.scenario, args.base_speed, args.seed)?;
+    if let Some(path) = &args.save_scenario {
+        let (_, text) = scenario_text(config_dir, &args.scenario, args.seed)?;
+        std::fs::write(path, text)
+            .map_err(|e| CliError::Failed(format!("--save-scenario {}: {e}", path.display())))?;
+    }
     if args.mcap.is_some() && args.method != Method::Motm {
         return Err(CliError::BadInput(format!(
             "--mcap: replay logs are written for --method motm, not {}",
