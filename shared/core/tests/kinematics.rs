@@ -335,3 +335,17 @@ fn robot_toml_with_a_negative_range_names_the_file_and_key() {
         "{msg}"
     );
 }
+
+#[test]
+fn a_held_joint_that_is_not_an_arm_joint_names_the_file_and_key() {
+    let dir = broken_config("held-joint", "fetch.toml", |text| {
+        text.replace("\"torso_lift_joint\"]", "\"torso_joint\"]")
+    });
+    let msg = load_error(&dir, "fetch");
+    let file = dir.join("robots").join("fetch.toml");
+    assert!(
+        msg.starts_with(&format!("{}: held_joints: ", file.display())),
+        "{msg}"
+    );
+    assert!(msg.contains("'torso_joint' is not an arm joint"), "{msg}");
+}

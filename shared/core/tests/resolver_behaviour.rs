@@ -1,6 +1,7 @@
 //! Behaviour of the redundancy-resolution QP on Frankie: equality met when feasible, bounds
 //! never exceeded, the damper keeps joints inside their limits, invalid input gives zeros, and
-//! the base tracks the base controller's (v, ω).
+//! the base tracks the base controller's (v, ω), and a held joint (Fetch's torso) stays at its
+//! ready position.
 
 use std::path::Path;
 
@@ -338,4 +339,51 @@ fn config_reads_from_toml_with_defaults_and_rejects_unknown_keys() {
     assert_eq!(config.damper_influence_distance, 0.9);
     let err = toml::from_str::<ResolverConfig>("facing_gian = 0.8").unwrap_err();
     assert!(err.to_string().contains("facing_gian"), "{err}");
+}
+
+#[test]
+fn a_held_joint_is_servoed_to_its_ready_position_while_the_others_move_the_tool() {
+    let config_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+    let fetch = Robot::load(&config_dir, "fetch").expect("fetch model");
+    assert_eq!(
+        fetch.held_joints(),
+        vec![(0, 0.0)],
+        "Fetch holds its torso down"
+    );
+    let mut free_fetch = fetch.clone();
+    free_fetch.config.held_joints.clear();
+    let base = BasePose::new(1.0, -0.5, 0.3);
+    // The tool rises at 0.1 m/s.
+    let twist = Twist::new(0.0, 0.0, 0.1, 0.0, 0.0, 0.0);
+    let e_t = 0.05;
+    for torso in [0.0, 0.2] {
+        let mut arm_q = fetch.config.ready_pose.clone();
+        arm_q[0] = torso;
+        let mut held = RedundancyResolver::for_robot(&fetch, ResolverConfig::default());
+        let out = held.resolve_motm(&fetch, &base, &arm_q, twist, e_t, None);
+        assert!(out.status.is_ok());
+        let fk = fetch.forward(&base, &arm_q);
+        let err = (achieved(&fk.jacobian, &out.joint_velocities()) - twist).norm();
+        assert!(err < 1e-2, "torso {torso}: |J q̇ − ν| = {err}");
+        // The servo's rate (1/s) times the distance to rest, within the torso's speed limit.
+        let limit =
+            margined_velocity_limits(&fetch.limits(), &ResolverConfig::default())[BASE_JOINTS];
+        let toward_rest = (-torso).max(-limit);
+        assert!(
+            (out.arm_qd[0] - toward_rest).abs() < 0.01,
+            "torso {torso}: q̇ {} instead of {toward_rest}",
+            out.arm_qd[0]
+        );
+        if torso == 0.0 {
+            // Left free, the torso at its lower limit (the ready pose's) is pushed up by the
+            // joint-limit damper, and the tool's rise is done by it.
+            let mut free = RedundancyResolver::for_robot(&free_fetch, ResolverConfig::default());
+            let loose = free.resolve_motm(&free_fetch, &base, &arm_q, twist, e_t, None);
+            assert!(
+                loose.arm_qd[0] > 0.05,
+                "a free torso would rise ({})",
+                loose.arm_qd[0]
+            );
+        }
+    }
 }

@@ -70,12 +70,14 @@ pub struct MissionConfig {
     /// How far past the last target the base keeps driving, m: the "next target" of the last
     /// task, along the direction from the second-to-last target (or the start) to the last one.
     pub run_out_distance: f64,
-    /// How far each perception fix of a landmark moves its anchor toward it, 0–1 (0 turns the
-    /// odometry correction off; `crate::localization`). 0.3: a few fixes (a tenth of a second
-    /// at 30 Hz) settle an anchor, and one stray fix moves it by less than a third.
+    /// The share of its landmark's weight each new perception fix takes from the earlier ones,
+    /// 0–1 (0 turns the odometry correction off; `crate::localization`). 0.3: a few fixes (a
+    /// tenth of a second at 30 Hz) settle a landmark, and one stray fix counts for less than a
+    /// third of it.
     pub landmark_fix_weight: f64,
-    /// Two landmark anchors fix the odometry frame's rotation only when at least this far
-    /// apart, m. 1 m: a centimetre of error in the anchors is then at most 0.6° of rotation.
+    /// The known layout is trusted (perception's first gates rely on it) once landmarks at
+    /// least this far apart have been fixed and the base has turned half a turn, m. 1 m: a
+    /// centimetre of error in the fixes is then at most 0.6° of rotation.
     pub landmark_baseline: f64,
     /// A cube counts as a landmark (standing where the mission knows it) when perception's
     /// estimate of it is slower than this as the grasp begins, m/s. 0.02 m/s: the moving cubes

@@ -25,6 +25,9 @@
 //!   cost `½ W s²`. The slacks are eliminated analytically (`s = q̇ − target`), which adds `W` to
 //!   the base entries of `P` and `−W·target` to `c`: the same optimum as explicit slack
 //!   variables, with two fewer variables and a fixed sparsity pattern.
+//! - **held joints** (`Robot::held_joints`, Fetch's torso lift): the same soft row, at the same
+//!   weight, for `q̇_j = clamp(q_ready − q, ±limit)` (a 1 s servo to the ready position), and
+//!   no damper on them.
 //!
 //! The solver is built once with a fixed sparsity pattern (`P` diagonal; `A` = the dense 6×n
 //! Jacobian block, the identity on the slacks, and ±1 bound rows), then only the numbers change
@@ -51,6 +54,9 @@ use crate::types::{BaseVelocity, Twist, wrap_angle};
 
 /// Number of slack variables (one per twist component).
 pub const SLACKS: usize = 6;
+/// Rate, 1/s, at which a held arm joint is servoed back to its ready position (within its
+/// velocity limit): a time constant of a second, well inside Fetch's torso speed of 0.1 m/s.
+const HELD_JOINT_GAIN: f64 = 1.0;
 /// Index of the base yaw-rate variable ω.
 const BASE_OMEGA: usize = 0;
 /// Index of the base forward-speed variable v.
@@ -268,6 +274,9 @@ pub struct RedundancyResolver {
     /// Scale of the manipulability gradient term: the reference threshold over the robot's (1
     /// when the resolver was not made for a robot).
     manipulability_scale: f64,
+    /// Held arm joints (arm index, ready position): each is servoed to its ready position
+    /// (`Robot::held_joints`).
+    held: Vec<(usize, f64)>,
 }
 
 impl std::fmt::Debug for RedundancyResolver {
@@ -292,6 +301,7 @@ impl RedundancyResolver {
         resolver.facing_joint = FacingJoint::from_robot(robot);
         resolver.manipulability_scale = resolver.config.manipulability_reference_threshold
             / robot.config.manipulability_threshold;
+        resolver.held = robot.held_joints();
         resolver
     }
 
@@ -370,6 +380,7 @@ impl RedundancyResolver {
             errors: 0,
             facing_joint: None,
             manipulability_scale: 1.0,
+            held: Vec::new(),
         }
     }
 
@@ -466,11 +477,14 @@ impl RedundancyResolver {
                 arm_q[j - BASE_JOINTS]
             };
             let (qmin, qmax) = self.position_limits[j];
-            if qmin.is_finite() && q - qmin <= influence {
+            // A held joint is servoed to its ready position instead, which may sit at a limit
+            // (Fetch's torso, down at 0 m): the damper would push it a stop distance off.
+            let held = j >= BASE_JOINTS && self.held.iter().any(|&(k, _)| k == j - BASE_JOINTS);
+            if !held && qmin.is_finite() && q - qmin <= influence {
                 // Clamped to vmax so a joint pushed past its stop stays feasible.
                 lo = lo.max((-(q - qmin - ps) / (influence - ps)).min(vmax));
             }
-            if qmax.is_finite() && qmax - q <= influence {
+            if !held && qmax.is_finite() && qmax - q <= influence {
                 hi = hi.min(((qmax - q - ps) / (influence - ps)).max(-vmax));
             }
             self.lower[j] = lo;
@@ -526,6 +540,15 @@ impl RedundancyResolver {
             self.p_diag[BASE_V] += w;
             self.linear[BASE_OMEGA] -= w * target.omega;
             self.linear[BASE_V] -= w * target.v;
+        }
+        for &(k, rest) in &self.held {
+            // Tracked like the base velocity: a soft row at the same weight.
+            let j = BASE_JOINTS + k;
+            let vmax = self.velocity_limit[j];
+            let toward_rest = (HELD_JOINT_GAIN * (rest - input.arm_q[k])).clamp(-vmax, vmax);
+            let w = cfg.base_tracking_weight;
+            self.p_diag[j] += w;
+            self.linear[j] -= w * toward_rest;
         }
 
         // Constraint matrix: only the Jacobian block changes.

@@ -45,6 +45,14 @@ pub struct RobotConfig {
     /// (`reach_range::derive_manipulation_range`); `shared/core/tests/manipulation_range.rs`
     /// checks it.
     pub manipulation_range: f64,
+    /// Arm joints the redundancy resolver holds at their ready position (servoed back to it
+    /// whenever they are off) instead of using them to move the tool; none by default.
+    /// Fetch holds its torso lift: left free, the QP (which costs every joint's speed alike)
+    /// raised it to do the lifts and left it near its top, and with the shoulder that high a
+    /// cube at table height is out of the arm's reach at the pass (the manipulation range is
+    /// derived with the torso down).
+    #[serde(default)]
+    pub held_joints: Vec<String>,
 }
 
 /// A mobile manipulator model: its configuration and its kinematic chain.
@@ -146,7 +154,30 @@ impl Robot {
                 ));
             }
         }
+        for name in &self.config.held_joints {
+            if !self.arm_joints().any(|j| &j.name == name) {
+                return Err(ModelError::invalid(
+                    &self.config_path,
+                    "held_joints",
+                    format!(
+                        "'{name}' is not an arm joint of the chain in {}",
+                        urdf_path.display()
+                    ),
+                ));
+            }
+        }
         Ok(())
+    }
+
+    /// The held arm joints ([`RobotConfig::held_joints`]): each one's arm index and its ready
+    /// position.
+    pub fn held_joints(&self) -> Vec<(usize, f64)> {
+        self.arm_joints()
+            .zip(&self.config.ready_pose)
+            .enumerate()
+            .filter(|(_, (joint, _))| self.config.held_joints.contains(&joint.name))
+            .map(|(k, (_, rest))| (k, *rest))
+            .collect()
     }
 
     /// The robot's name.
