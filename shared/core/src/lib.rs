@@ -26,8 +26,8 @@ pub mod supervision;
 pub use baselines::{holistic, planning, reactive};
 pub use control::{
     base_command_rate, base_controller, base_slip, facing, final_phase, input_check, localization,
-    mission, mission_file, mission_tracker, on_the_move, perception, qp_scenario, quintic, reacher,
-    resolver, route, servo, stack,
+    mission, mission_file, mission_tracker, on_the_move, outline, perception, qp_scenario, quintic,
+    reacher, resolver, route, servo, stack,
 };
 pub use limits::{command_limiter, velocity_driver};
 pub use model::{camera, chain, config_dir, error, kinematics, reach_range, robot, types};

@@ -397,7 +397,16 @@ pub struct Localizer {
     max_range: f64,
     /// The newest image stamp taken as a landmark fix.
     last_fix_ns: Option<u64>,
+    /// The current task's first fix: task index, image stamp (ns) and position.
+    first_fix: Option<(usize, u64, Vector3<f64>)>,
 }
+
+/// Shortest time, s, a cube must have been seen before its grasp begins to count as a landmark:
+/// its mean speed over that time is what tells a cube standing still from one moving slowly
+/// (perception's velocity, fitted over half a second, read under 0.02 m/s for cubes moving at
+/// 0.03 m/s, and their fixes, a quarter of a metre from where the mission knew them, bent the
+/// odometry calibration).
+pub const MIN_LANDMARK_TRACK: f64 = 1.0;
 
 impl Localizer {
     /// A localizer with the mission's landmark settings.
@@ -411,6 +420,7 @@ impl Localizer {
             max_residual: config.landmark_max_residual,
             max_range: config.landmark_max_range,
             last_fix_ns: None,
+            first_fix: None,
         }
     }
 
@@ -427,7 +437,8 @@ impl Localizer {
     /// Feeds perception's fix `seen` (from the image stamped `stamp`) of task `index`, `task`,
     /// to the correction when the task's object is a landmark at this moment: every new fix of
     /// a container or a button; a cube's once, on the cycle its grasp begins (`grasp_begins`),
-    /// when it is seen standing still. Only fixes taken with the tool within
+    /// when it is seen standing still: slower than `landmark_max_speed` now, and on average
+    /// since its first fix, at least [`MIN_LANDMARK_TRACK`] before. Only fixes taken with the tool within
     /// `landmark_max_range` of the task's aim (`tool_range`, m) count: from farther, a
     /// container is seen obliquely and its walls bias the fix. A fix farther than
     /// `landmark_max_residual` from where the correction puts the known position is another
@@ -441,12 +452,21 @@ impl Localizer {
         grasp_begins: bool,
         stamp: u64,
     ) {
+        if self.first_fix.is_none_or(|(task, _, _)| task != index) {
+            self.first_fix = Some((index, stamp, seen.position));
+        }
+        // Mean speed since the first fix, over at least MIN_LANDMARK_TRACK.
+        let still = self.first_fix.is_some_and(|(_, first, position)| {
+            let span = stamp.saturating_sub(first) as f64 * 1e-9;
+            span >= MIN_LANDMARK_TRACK
+                && (seen.position - position).xy().norm() < self.max_speed * span
+        });
         let landmark = tool_range <= self.max_range
             && match task.kind {
                 TaskKind::Place | TaskKind::PressButton => {
                     self.last_fix_ns.is_none_or(|last| stamp > last)
                 }
-                TaskKind::Pick => grasp_begins && seen.velocity.norm() < self.max_speed,
+                TaskKind::Pick => grasp_begins && still && seen.velocity.norm() < self.max_speed,
             };
         let residual = (self.correction.to_odometry(&task.position) - seen.position)
             .xy()
@@ -687,14 +707,23 @@ mod tests {
             item: 1,
             position: Vector3::new(2.0, 0.4, 0.45),
         };
+        const S: u64 = 1_000_000_000;
         let mut cube_seen = TargetEstimate::fixed(Vector3::new(2.1, 0.45, 0.45));
-        l.locate(1, &cube, &cube_seen, 0.05, false, 3);
+        l.locate(1, &cube, &cube_seen, 0.05, false, 3 * S);
+        assert_eq!(l.correction().offset(), offset);
+        // Its grasp begins half a second after its first fix: too short a look to tell.
+        l.locate(1, &cube, &cube_seen, 0.05, true, 3 * S + S / 2);
         assert_eq!(l.correction().offset(), offset);
         cube_seen.velocity.x = 0.05;
-        l.locate(1, &cube, &cube_seen, 0.05, true, 4);
+        l.locate(1, &cube, &cube_seen, 0.05, true, 5 * S);
         assert_eq!(l.correction().offset(), offset);
         cube_seen.velocity.x = 0.0;
-        l.locate(1, &cube, &cube_seen, 0.05, true, 5);
+        // Seen still now, but 0.1 m from its first fix 2.5 s before: a cube moving slowly.
+        let mut moved = cube_seen;
+        moved.position.x += 0.1;
+        l.locate(1, &cube, &moved, 0.05, true, 5 * S + S / 2);
+        assert_eq!(l.correction().offset(), offset);
+        l.locate(1, &cube, &cube_seen, 0.05, true, 6 * S);
         assert_ne!(l.correction().offset(), offset);
     }
 }

@@ -333,13 +333,19 @@ mod tests {
         let out = t.step(&input(base, Some(far)));
         assert_eq!((out.phase, out.odometry_offset), (Phase::Reach, [0.0; 3]));
         assert_eq!(out.next_target, Some(container));
-        // ... it is a landmark as its grasp begins, seen still: the rest of the mission moves
-        // with it.
-        let out = t.step(&input(base, Some(TargetEstimate::fixed(seen))));
+        // ... it is a landmark as its grasp begins, seen still (now, and on average since its
+        // first fix, 20 s before): the rest of the mission moves with it.
+        let out = t.step(&MissionTrackerInput {
+            fix_stamp_ns: Some(20_000_000_001),
+            ..input(base, Some(TargetEstimate::fixed(seen)))
+        });
         assert_eq!(out.phase, Phase::Final);
+        // It moves by most of the 6 cm: one fix (2 cm) against the start pose's prior (5 cm)
+        // takes 2500/(2500 + 400) of it.
         let next = out.next_target.unwrap();
+        let moved = next - container;
         assert!(
-            (next - (container + Vector3::new(0.06, 0.0, 0.0))).norm() < 1e-9,
+            (moved.x - 0.06 * 2500.0 / 2900.0).abs() < 1e-3 && moved.yz().norm() < 1e-6,
             "{next}"
         );
         // A cube seen moving as its grasp begins corrects nothing.

@@ -14,6 +14,7 @@ pub mod mission;
 pub mod mission_file;
 pub mod mission_tracker;
 pub mod on_the_move;
+pub mod outline;
 pub mod perception;
 pub mod qp_scenario;
 pub mod quintic;

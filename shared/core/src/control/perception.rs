@@ -23,6 +23,7 @@ use serde::Deserialize;
 
 use crate::camera::CameraCalibration;
 use crate::error::ModelError;
+use crate::outline::{Ray, fit_square};
 use crate::types::TargetEstimate;
 
 /// Settings of [`Perception`]. Every key is optional; unknown keys are errors.
@@ -114,12 +115,20 @@ pub struct PerceptionConfig {
     /// Default 1.6: approaching at the reach's speed, a cube's blob grows by a few per cent a
     /// frame, while a merge about doubles it.
     pub max_blob_growth: f64,
+    /// Outer half-size of a container, m (its square outline, [`crate::outline`]). Default
+    /// 0.16: 0.15 inside and walls 0.01 thick. A container's fix is the square fitted to its
+    /// silhouette's edges, not its blob's centroid, which near the drop (the container filling
+    /// the view) is where the camera looks.
+    pub container_half_size: f64,
 }
 
 /// Farthest apart successive container fixes may be and still confirm each other
 /// ([`PerceptionConfig::container_confirmations`]), m: the fixes of a container in range, from a
 /// camera moving at up to 0.4 m/s, move by a few centimetres from one image to the next.
 pub const CONTAINER_CONFIRMATION_DISTANCE: f64 = 0.1;
+
+/// Most edge pixels a container's outline fit uses ([`crate::outline`]).
+pub const MAX_OUTLINE_RAYS: usize = 240;
 
 /// Fewest extra pixels over the target's last blob for a blob to count as a merge (blobs of a
 /// few pixels grow by whole pixels from one frame to the next).
@@ -145,6 +154,7 @@ impl Default for PerceptionConfig {
             max_object_speed: 0.5,
             constellation_tolerance: 0.04,
             max_blob_growth: 1.6,
+            container_half_size: 0.16,
         }
     }
 }
@@ -169,6 +179,7 @@ impl PerceptionConfig {
                 self.constellation_tolerance,
             ),
             ("perception.max_blob_growth", self.max_blob_growth),
+            ("perception.container_half_size", self.container_half_size),
         ];
         ModelError::check_positive(file, &positive)?;
         if !(0.0..std::f64::consts::FRAC_PI_2).contains(&self.min_ray_angle) {
@@ -561,17 +572,20 @@ impl Perception {
             BlobColour::Red => self.config.max_prior_distance,
             BlobColour::Blue => self.config.max_hint_distance,
         };
+        let mut blob_of_fix = Vec::new();
         let fixes: Vec<(usize, Vector3<f64>)> = self
             .blobs
             .iter()
-            .filter(|b| b.pixels >= self.config.min_pixels)
-            .filter_map(|blob| {
+            .enumerate()
+            .filter(|(_, b)| b.pixels >= self.config.min_pixels)
+            .filter_map(|(k, blob)| {
                 let fix = self.intersect(
                     blob.centroid(),
                     &input.tool_pose,
                     input.object_height,
                     max_range,
                 )?;
+                blob_of_fix.push(k);
                 Some((blob.pixels, fix))
             })
             .collect();
@@ -623,7 +637,8 @@ impl Perception {
             input.neighbours.iter().any(|n| (fix - n).xy().norm() < d)
         };
         let mut best: Option<(f64, f64, usize, Vector3<f64>)> = None;
-        for &(pixels, fix) in &fixes {
+        let mut best_blob = 0;
+        for (i, &(pixels, fix)) in fixes.iter().enumerate() {
             if merged(pixels, &fix) || (hint_unseen && neighbour_nearer(&fix)) {
                 continue;
             }
@@ -640,9 +655,94 @@ impl Perception {
             };
             if best.is_none_or(|(e, s, _, _)| explained > e || (explained == e && score < s)) {
                 best = Some((explained, score, pixels, fix));
+                best_blob = blob_of_fix[i];
             }
         }
-        best.map(|(_, _, pixels, fix)| (pixels, fix))
+        let (_, _, pixels, fix) = best?;
+        match input.colour {
+            BlobColour::Red => Some((pixels, fix)),
+            BlobColour::Blue => self
+                .outline_fix(best_blob, input, fix)
+                .map(|fix| (pixels, fix)),
+        }
+    }
+
+    /// A container's fix from the outline of its blob `blob` ([`crate::outline`]): the rays of
+    /// the blob's outer edge pixels (each row's and each column's extreme pixels, leaving out
+    /// those at the edge of the view: the image's border or the lens' image circle) fitted with the container's square at its rim's height and
+    /// on the floor, from the centroid's fix `rough`. None when the outline does not fix the
+    /// centre and the blob is cut by the image's border (its centroid is then only where the
+    /// camera looks); the centroid's fix when the whole blob is in the image.
+    fn outline_fix(
+        &mut self,
+        blob: usize,
+        input: &PerceptionInput,
+        rough: Vector3<f64>,
+    ) -> Option<Vector3<f64>> {
+        let (width, height) = (input.width as usize, input.height as usize);
+        // Each row's leftmost and rightmost pixel, each column's top and bottom one.
+        let mut rows = vec![(u32::MAX, 0u32); height];
+        let mut columns = vec![(u32::MAX, 0u32); width];
+        for i in 0..self.runs.len() {
+            let root = find(&mut self.parent, i as u32) as usize;
+            if self.blob_of_root[root] as usize != blob {
+                continue;
+            }
+            let run = self.runs[i];
+            let row = &mut rows[run.row as usize];
+            *row = (row.0.min(run.start), row.1.max(run.end));
+            for column in &mut columns[run.start as usize..run.end as usize] {
+                *column = (column.0.min(run.row), column.1.max(run.row));
+            }
+        }
+        // An edge pixel is the silhouette's only where the pixel two steps further out is still
+        // imaged (inside the image and the lens' image circle): elsewhere the blob is cut by the
+        // view's edge, not by the box's.
+        let model = &self.calibration.model;
+        let imaged = |u: i64, v: i64| {
+            u >= 0
+                && v >= 0
+                && u < width as i64
+                && v < height as i64
+                && model.unproject(&Vector2::new(u as f64, v as f64)).is_some()
+        };
+        let mut edges = Vec::new();
+        let mut cut = false;
+        let mut edge = |pixel: Vector2<f64>, probe: (i64, i64)| {
+            if imaged(probe.0, probe.1) {
+                edges.push(pixel);
+            } else {
+                cut = true;
+            }
+        };
+        for (v, &(first, end)) in rows.iter().enumerate().filter(|(_, r)| r.0 != u32::MAX) {
+            let (v, first, last) = (v as i64, first as i64, end as i64 - 1);
+            edge(Vector2::new(first as f64 - 0.5, v as f64), (first - 2, v));
+            edge(Vector2::new(last as f64 + 0.5, v as f64), (last + 2, v));
+        }
+        for (u, &(top, bottom)) in columns.iter().enumerate().filter(|(_, c)| c.0 != u32::MAX) {
+            let (u, top, bottom) = (u as i64, top as i64, bottom as i64);
+            edge(Vector2::new(u as f64, top as f64 - 0.5), (u, top - 2));
+            edge(Vector2::new(u as f64, bottom as f64 + 0.5), (u, bottom + 2));
+        }
+        let world_from_camera = input.tool_pose * self.calibration.tool_from_camera;
+        let origin = world_from_camera.translation.vector;
+        // At most MAX_OUTLINE_RAYS, evenly through the edge (the fit's cost grows with them).
+        let stride = edges.len().div_ceil(MAX_OUTLINE_RAYS).max(1);
+        let rays: Vec<Ray> = edges
+            .iter()
+            .step_by(stride)
+            .filter_map(|pixel| self.calibration.model.unproject(pixel))
+            .map(|ray| Ray {
+                origin,
+                direction: world_from_camera.rotation * ray.into_inner(),
+            })
+            .collect();
+        let planes = [input.object_height, 0.0];
+        match fit_square(&rays, planes, self.config.container_half_size, rough.xy()) {
+            Some(fit) => Some(Vector3::new(fit.centre.x, fit.centre.y, rough.z)),
+            None => (!cut).then_some(rough),
+        }
     }
 
     /// How well taking `target` for the target explains the view: with the known `neighbours`
