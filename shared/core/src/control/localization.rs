@@ -34,7 +34,7 @@ use crate::types::{TargetEstimate, wrap_angle};
 
 /// Least angle turned in odometry, either way, rad, before the turn's scale counts as known
 /// (half a turn): the known layout is then trusted ([`OdometryCorrection::calibrated`]).
-pub const MIN_TURN_FOR_RATE: f64 = std::f64::consts::PI;
+pub const MIN_TURN_TO_TRUST_LAYOUT: f64 = std::f64::consts::PI;
 
 /// Standard deviation of the prior on each scale factor: 5 %, five times the simulated
 /// wheel-odometry error.
@@ -44,9 +44,9 @@ const SCALE_PRIOR_STD: f64 = 0.05;
 /// decimetres, seen from above).
 pub const FIX_STD: f64 = 0.02;
 
-/// Standard deviation of a container's fixes, m: the blob's centroid, put on the rim plane,
-/// falls short of the centre by the walls below the rim seen from the side (measured 5-14 cm
-/// within the landmark range).
+/// Standard deviation of a container's fixes, m: the outline fit (`crate::outline`) is within
+/// millimetres from over the container, but seen from beside it, low, an image now and then
+/// gives a fix a wall's height (0.1-0.15 m) off.
 pub const CONTAINER_FIX_STD: f64 = 0.1;
 
 /// Standard deviation of the prior on the start pose's position, m: the start is known, as
@@ -122,7 +122,7 @@ impl OdometryCorrection {
     /// A correction that starts at the identity (odometry starts on the world). Each new fix of
     /// a landmark takes `fix_weight` of its task's weight, the older ones sharing the rest (0
     /// turns the correction off); the known layout is trusted once the base has turned
-    /// [`MIN_TURN_FOR_RATE`] and fixes of two landmarks at least `baseline` (m) apart are in.
+    /// [`MIN_TURN_TO_TRUST_LAYOUT`] and fixes of two landmarks at least `baseline` (m) apart are in.
     pub fn new(fix_weight: f64, baseline: f64) -> Self {
         Self {
             fix_weight,
@@ -226,7 +226,7 @@ impl OdometryCorrection {
         });
         self.fit();
         self.calibrated = self.calibrated
-            || self.turned >= MIN_TURN_FOR_RATE
+            || self.turned >= MIN_TURN_TO_TRUST_LAYOUT
                 && self
                     .fixes
                     .iter()

@@ -636,8 +636,8 @@ impl Perception {
                 .map_or(f64::INFINITY, |h| (fix - h).xy().norm());
             input.neighbours.iter().any(|n| (fix - n).xy().norm() < d)
         };
-        let mut best: Option<(f64, f64, usize, Vector3<f64>)> = None;
-        let mut best_blob = 0;
+        // (explained, score, pixels, fix, blob)
+        let mut best: Option<(f64, f64, usize, Vector3<f64>, usize)> = None;
         for (i, &(pixels, fix)) in fixes.iter().enumerate() {
             if merged(pixels, &fix) || (hint_unseen && neighbour_nearer(&fix)) {
                 continue;
@@ -653,26 +653,24 @@ impl Perception {
                 ),
                 None => (0.0, -(pixels as f64)),
             };
-            if best.is_none_or(|(e, s, _, _)| explained > e || (explained == e && score < s)) {
-                best = Some((explained, score, pixels, fix));
-                best_blob = blob_of_fix[i];
+            if best.is_none_or(|(e, s, ..)| explained > e || (explained == e && score < s)) {
+                best = Some((explained, score, pixels, fix, blob_of_fix[i]));
             }
         }
-        let (_, _, pixels, fix) = best?;
+        let (_, _, pixels, fix, blob) = best?;
         match input.colour {
             BlobColour::Red => Some((pixels, fix)),
-            BlobColour::Blue => self
-                .outline_fix(best_blob, input, fix)
-                .map(|fix| (pixels, fix)),
+            BlobColour::Blue => self.outline_fix(blob, input, fix).map(|fix| (pixels, fix)),
         }
     }
 
     /// A container's fix from the outline of its blob `blob` ([`crate::outline`]): the rays of
     /// the blob's outer edge pixels (each row's and each column's extreme pixels, leaving out
-    /// those at the edge of the view: the image's border or the lens' image circle) fitted with the container's square at its rim's height and
-    /// on the floor, from the centroid's fix `rough`. None when the outline does not fix the
-    /// centre and the blob is cut by the image's border (its centroid is then only where the
-    /// camera looks); the centroid's fix when the whole blob is in the image.
+    /// those at the edge of the view: the image's border or the lens' image circle) fitted
+    /// with the container's square at its rim's height and on the floor, from the centroid's
+    /// fix `rough`. None when the outline does not fix the centre and the blob is cut by the
+    /// edge of the view (its centroid is then only where the camera looks); the centroid's fix
+    /// when the whole blob is in view.
     fn outline_fix(
         &mut self,
         blob: usize,
