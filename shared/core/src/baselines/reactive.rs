@@ -24,6 +24,14 @@
 //!   yaw. Keeping the tool's yaw on a pick, as the holistic reference does, closes the fingers
 //!   on a cube turned by up to 45° from them wherever the base comes in at a slant (a row's
 //!   cubes approached from the container), and they knock it off.
+//! - **Stand.** A pick or a press starts, when the base is far, with a drive to the target's
+//!   stand: `base_standoff + stand_margin` from it, in the direction whose footprint clears the
+//!   other known objects (a row's neighbours, emptied platforms), nearest the base's side. The
+//!   base turns on the spot to face it and drives there (the arm back at its ready pose), then
+//!   the holistic law takes over, square to a row. Alone, the holistic law drives the base at
+//!   the target along the line it comes from: after a place, reversing from a container, that
+//!   line met a row of cubes at its end and at a slant, past platforms already emptied, and the
+//!   base was held there for good (10 of 20 Exp 2 runs).
 //! - **Base stand-off.** The base does not drive closer than `base_standoff` to the target
 //!   (the holistic law alone would run it into the platform): its forward speed toward the
 //!   target is capped at the speed from which it can still stop there. The stands of earlier
@@ -52,7 +60,8 @@ use crate::localization::world_to_odometry;
 use crate::mission::{MissionTask, TaskKind, give_up_task, next_open_task};
 use crate::reacher::{symmetric_yaw, tool_yaw, top_down};
 use crate::resolver::ResolveStatus;
-use crate::robot::Robot;
+use crate::robot::{BASE_JOINTS, Robot};
+use crate::types::wrap_angle;
 use crate::types::{BaseVelocity, GripperCommand, TargetEstimate};
 
 /// Tunables of the reactive baseline's stages.
@@ -113,6 +122,28 @@ pub struct ReactiveConfig {
     /// 0.3 m/s), and the cap for a platform beside the target allows for it. At a crawl the
     /// overshoot is nil, so a base creeping up to a row's neighbour is not held back for it.
     pub response_lag: f64,
+    /// A pick or a press whose target is farther than this from its stand (m) begins with a
+    /// drive to the stand: a point `base_standoff + stand_margin` from the target, in the
+    /// direction out of the layout's way ([`ReactiveBaseline::stand`]) nearest the base's
+    /// side. The holistic law alone drives the base at the target along the line it comes
+    /// from; after a place, reversing from a container, that line met a row of cubes at its
+    /// end and at a slant, past platforms already emptied, where the base was held for good.
+    pub stand_travel_distance: f64,
+    /// How much farther than `base_standoff` from the target the stand is, m: room for the
+    /// holistic law to close in square.
+    pub stand_margin: f64,
+    /// The drive to the stand ends within this of it, m.
+    pub stand_tolerance: f64,
+    /// The drive to the stand turns on the spot while the stand's bearing is off the heading
+    /// by more than this, rad; within it, it steers (heading gain `stand_heading_gain`).
+    pub stand_turn_bearing: f64,
+    /// Turn rate on the spot on the drive to the stand, rad/s.
+    pub stand_turn_rate: f64,
+    /// Turn rate per radian of the stand's bearing while driving to it, 1/s.
+    pub stand_heading_gain: f64,
+    /// Gain of the arm's return to its ready pose on the drive to the stand, 1/s (the tool is
+    /// then high above the platforms, and the camera looks ahead of the base).
+    pub ready_gain: f64,
     /// Turn rate while an earlier platform blocks the way, rad/s (a third of Frankie's 1.5 rad/s
     /// limit: a quarter turn takes about 3 s).
     pub escape_turn_rate: f64,
@@ -160,6 +191,13 @@ impl Default for ReactiveConfig {
             platform_radius: 0.21,
             footprint_margin: 0.05,
             response_lag: 0.23,
+            stand_travel_distance: 0.5,
+            stand_margin: 0.05,
+            stand_tolerance: 0.1,
+            stand_turn_bearing: 0.5,
+            stand_turn_rate: 1.0,
+            stand_heading_gain: 1.5,
+            ready_gain: 1.0,
             escape_turn_rate: 0.5,
             squaring_tolerance: 0.03,
             squaring_release: 0.1,
@@ -242,6 +280,10 @@ pub struct ReactiveBaseline {
     failed: Vec<bool>,
     /// The platform a squaring turn is freeing the base from, and the turn rate.
     squaring: Option<(usize, f64)>,
+    /// Whether the current approach has decided on a drive to its stand.
+    stand_decided: bool,
+    /// The direction of the stand from the target while the base drives to it.
+    stand: Option<Vector2<f64>>,
     /// When the stage's error last reached a new best by `progress_distance`, and that best.
     progress: Option<(f64, f64)>,
     gripper: GripperCommand,
@@ -274,6 +316,8 @@ impl ReactiveBaseline {
             anchor: None,
             progress: None,
             squaring: None,
+            stand_decided: false,
+            stand: None,
             gripper: GripperCommand::Open,
         }
     }
@@ -303,6 +347,8 @@ impl ReactiveBaseline {
         self.stage = stage;
         self.stage_start = t;
         self.progress = None;
+        self.stand_decided = false;
+        self.stand = None;
     }
 
     /// Records the stage's error at time `t` and tells whether the stage has stalled: its
@@ -437,6 +483,96 @@ impl ReactiveBaseline {
         to_goal.norm() > to_platform.norm() + self.config.base_standoff
     }
 
+    /// The direction from `target` (odometry) of its stand, `base_standoff + stand_margin` out:
+    /// of the directions every 10° whose footprint there, facing the target, keeps
+    /// `platform_radius + footprint_margin` from every other known object (a row's neighbours,
+    /// platforms emptied earlier), the one nearest the base's side. `None` when none is clear.
+    fn stand(
+        &self,
+        target: &Vector3<f64>,
+        base: &BasePose,
+        offset: &[f64; 3],
+    ) -> Option<Vector2<f64>> {
+        let [half_length, half_width] = self.half_footprint;
+        let distance = self.config.base_standoff + self.config.stand_margin;
+        let keep = self.config.platform_radius + self.config.footprint_margin;
+        let others: Vec<Vector2<f64>> = self
+            .tasks
+            .iter()
+            .enumerate()
+            .filter(|&(index, _)| index != self.task)
+            .map(|(_, t)| world_to_odometry(offset, &t.position).xy() - target.xy())
+            .filter(|p| p.norm() > self.config.stand_tolerance)
+            .collect();
+        let clear = |n: &Vector2<f64>| {
+            others.iter().all(|p| {
+                let (along, beside) = along_and_beside(p, n);
+                let out = Vector2::new(
+                    ((along - distance).abs() - half_length).max(0.0),
+                    (beside - half_width).max(0.0),
+                );
+                out.norm() >= keep
+            })
+        };
+        let side = (Vector2::new(base.x, base.y) - target.xy()).normalize();
+        (0..STAND_DIRECTIONS)
+            .map(|k| {
+                let angle = std::f64::consts::TAU * k as f64 / STAND_DIRECTIONS as f64;
+                Vector2::new(angle.cos(), angle.sin())
+            })
+            .filter(clear)
+            .max_by(|a, b| a.dot(&side).total_cmp(&b.dot(&side)))
+    }
+
+    /// The drive to the stand `stand` (odometry), and the arm's return to its ready pose:
+    /// `None` once the base is within `stand_tolerance` of it.
+    fn drive_to_stand(
+        &self,
+        input: &ReactiveInput<'_>,
+        stand: &Vector2<f64>,
+    ) -> Option<(BaseVelocity, Vec<f64>)> {
+        let base = &input.base;
+        let to_stand = stand - Vector2::new(base.x, base.y);
+        let distance = to_stand.norm();
+        if distance < self.config.stand_tolerance {
+            return None;
+        }
+        let bearing = wrap_angle(to_stand.y.atan2(to_stand.x) - base.yaw);
+        let rate = self.config.stand_turn_rate;
+        let velocity = if bearing.abs() > self.config.stand_turn_bearing {
+            BaseVelocity {
+                v: 0.0,
+                omega: rate.copysign(bearing),
+            }
+        } else {
+            let v = (2.0 * self.base_deceleration * distance)
+                .sqrt()
+                .min(self.config.max_base_speed);
+            BaseVelocity {
+                v: self.clamp_forward_speed(
+                    base,
+                    &input.target.position,
+                    &input.odometry_offset,
+                    v,
+                ),
+                omega: (self.config.stand_heading_gain * bearing).clamp(-rate, rate),
+            }
+        };
+        let arm_qd = self
+            .robot
+            .config
+            .ready_pose
+            .iter()
+            .zip(input.arm_q)
+            .zip(self.robot.limits().iter().skip(BASE_JOINTS))
+            .map(|((ready, q), limits)| {
+                let top = READY_SPEED_SHARE * limits.velocity;
+                (self.config.ready_gain * (ready - q)).clamp(-top, top)
+            })
+            .collect();
+        Some((velocity, arm_qd))
+    }
+
     /// The turn that takes the base out of an earlier target's stand's way, when one blocks it:
     /// the platform lies in the strip ahead within `platform_clearance`, the base would have to
     /// pass it to come within `base_standoff` of `goal` (a platform beside the goal, such as
@@ -535,6 +671,37 @@ impl ReactiveBaseline {
         if self.stalled(input.t, stage_error) && reaching {
             self.give_up(input.t);
             return self.step(input);
+        }
+        if self.stage == ReactiveStage::Approach && !self.stand_decided {
+            self.stand_decided = true;
+            self.stand = (task.kind != TaskKind::Place)
+                .then(|| self.stand(&input.target.position, &input.base, &input.odometry_offset))
+                .flatten()
+                .filter(|n| {
+                    let stand = input.target.position.xy()
+                        + n * (self.config.base_standoff + self.config.stand_margin);
+                    (stand - Vector2::new(input.base.x, input.base.y)).norm()
+                        > self.config.stand_travel_distance
+                });
+        }
+        if let Some(n) = self.stand {
+            let stand = input.target.position.xy()
+                + n * (self.config.base_standoff + self.config.stand_margin);
+            match self.drive_to_stand(input, &stand) {
+                Some((base, arm_qd)) => {
+                    return ReactiveOutput {
+                        base,
+                        arm_qd,
+                        gripper: self.gripper,
+                        stage: self.stage,
+                        task_index: self.task,
+                        qp_status: ResolveStatus::Solved,
+                        position_error: stage_error,
+                        tool_to_target,
+                    };
+                }
+                None => self.stand = None,
+            }
         }
         let current_yaw = tool_yaw(&tool.rotation);
         let yaw = match task.kind {
@@ -647,6 +814,12 @@ impl ReactiveBaseline {
         }
     }
 }
+
+/// Directions tried for a target's stand ([`ReactiveBaseline::stand`]): every 10°.
+const STAND_DIRECTIONS: usize = 36;
+
+/// Share of each arm joint's velocity limit its return to the ready pose may use.
+const READY_SPEED_SHARE: f64 = 0.5;
 
 /// How far `offset` (from the base) lies ahead along the unit `heading`, and how far beside the
 /// heading line, m.
@@ -830,6 +1003,97 @@ mod tests {
         let touching = BasePose { x: 1.35, ..base };
         let v = baseline.clamp_forward_speed(&touching, &cube, &[0.0; 3], 0.3);
         assert!(v.abs() < 1e-9, "v = {v}");
+    }
+
+    /// Five cubes in a row along y at x = 0, 0.12 m apart, each placed at (3, 0); working on
+    /// the middle one's pick.
+    fn row_baseline() -> ReactiveBaseline {
+        let tasks = (0..5)
+            .flat_map(|k| {
+                let y = 0.24 - 0.12 * k as f64;
+                [
+                    MissionTask {
+                        kind: TaskKind::Pick,
+                        item: k,
+                        position: Vector3::new(0.0, y, 0.45),
+                    },
+                    MissionTask {
+                        kind: TaskKind::Place,
+                        item: k,
+                        position: Vector3::new(3.0, 0.0, 0.35),
+                    },
+                ]
+            })
+            .collect();
+        let mut baseline = ReactiveBaseline::new(frankie(), ReactiveConfig::default(), tasks);
+        baseline.task = 4;
+        baseline
+    }
+
+    #[test]
+    fn a_row_cube_s_stand_is_square_to_the_row_on_the_base_s_side() {
+        let baseline = row_baseline();
+        let cube = Vector3::new(0.0, 0.0, 0.45);
+        let at = |x: f64, y: f64| BasePose { x, y, yaw: 0.0 };
+        // From the container: straight out from the row.
+        let n = baseline.stand(&cube, &at(3.0, 0.0), &[0.0; 3]);
+        assert!(n.is_some_and(|n| (n - Vector2::new(1.0, 0.0)).norm() < 1e-9));
+        // From beside the row's end, or behind the row at a slant: out from the row on the
+        // base's side, at most 30° off square (the footprint there still clears the
+        // neighbours' platforms), never along the row past them.
+        for (base, x) in [(at(0.6, 1.0), 1.0), (at(-2.0, -1.5), -1.0)] {
+            let n = baseline.stand(&cube, &base, &[0.0; 3]).expect("a stand");
+            assert!(n.x * x >= 30f64.to_radians().cos() - 1e-9, "{base:?}: {n}");
+        }
+        // A lone cube's stand is on the base's side, to the nearest 10°.
+        let lone = exp1_baseline();
+        let n = lone
+            .stand(&Vector3::new(2.0, 0.0, 0.45), &at(2.0, 3.0), &[0.0; 3])
+            .expect("a stand");
+        assert!((n - Vector2::new(0.0, 1.0)).norm() < 1e-9, "{n}");
+    }
+
+    #[test]
+    fn a_far_pick_begins_with_a_drive_to_its_stand_and_the_arm_back_at_ready() {
+        let mut baseline = row_baseline();
+        let cube = Vector3::new(0.0, 0.0, 0.45);
+        // Facing away from the stand (1.0 + standoff, 0) ... (0.75, 0): a turn on the spot.
+        let away = BasePose {
+            x: 2.5,
+            y: 0.0,
+            yaw: 0.0,
+        };
+        let out = step_at(&mut baseline, away, cube);
+        assert_eq!(out.base.v, 0.0);
+        assert_eq!(out.base.omega.abs(), baseline.config.stand_turn_rate);
+        // Facing it: driving at the top speed, steering to it; an arm off its ready pose is
+        // driven back to it.
+        let facing = BasePose {
+            yaw: std::f64::consts::PI,
+            ..away
+        };
+        let mut arm_q = baseline.robot.config.ready_pose.clone();
+        arm_q[0] += 0.3;
+        let out = baseline.step(&ReactiveInput {
+            t: 0.1,
+            base: facing,
+            arm_q: &arm_q,
+            gripper_opening: 0.08,
+            target: TargetEstimate::fixed(cube),
+            odometry_offset: [0.0; 3],
+        });
+        assert!((out.base.v - baseline.config.max_base_speed).abs() < 1e-9);
+        assert!(out.base.omega.abs() < 1e-9);
+        assert!(out.arm_qd[0] < 0.0 && out.arm_qd[1..].iter().all(|qd| qd.abs() < 1e-12));
+        // At the stand the holistic law takes over: the base is square to the row, and drives
+        // no closer than the stand-off.
+        let stand = BasePose {
+            x: baseline.config.base_standoff + baseline.config.stand_margin,
+            ..facing
+        };
+        let out = step_at(&mut baseline, stand, cube);
+        assert!(out.base.v < 0.1, "{out:?}");
+        assert!(baseline.stand.is_none());
     }
 
     #[test]

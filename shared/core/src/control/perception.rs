@@ -86,6 +86,13 @@ pub struct PerceptionConfig {
     /// wall), which sent the base round a new pass; the fixes of a container in range come in
     /// every image. 1 takes the first fix at once.
     pub container_confirmations: usize,
+    /// Consecutive images whose fixes agree (within `constellation_tolerance`) before the first
+    /// fix of an object with known neighbours (a row's cube) is taken. Default 3 (0.1 s): the
+    /// first image of a row, at the edge of the range, may hold all its cubes but the target
+    /// (below the blob size), and a whole spacing's shift then explains the view; an image
+    /// later the target's blob is in it and the constellation tells. A wrong first fix is
+    /// tracked for good. 1 takes the first fix at once.
+    pub row_confirmations: usize,
     /// A pixel is blue (a container) when its blue channel is at least this (8-bit). Default 80.
     pub min_blue: u8,
     /// ... and its blue channel exceeds both red and green by at least this. Default 50: the
@@ -134,6 +141,10 @@ pub const MAX_OUTLINE_RAYS: usize = 240;
 /// few pixels grow by whole pixels from one frame to the next).
 pub const MERGE_MIN_EXTRA_PIXELS: usize = 4;
 
+/// How far inside the edge of the view (the image border, the lens' image circle) a point must
+/// image to count as in view, as a share of the image width (6 pixels of 320).
+pub const IN_VIEW_MARGIN: f64 = 0.02;
+
 impl Default for PerceptionConfig {
     fn default() -> Self {
         Self {
@@ -148,6 +159,7 @@ impl Default for PerceptionConfig {
             max_prior_distance: 0.3,
             max_hint_distance: 0.6,
             container_confirmations: 3,
+            row_confirmations: 3,
             min_blue: 80,
             min_blue_margin: 50,
             velocity_significance: 2.0,
@@ -199,12 +211,16 @@ impl PerceptionConfig {
                 format!("must exceed 1, got {}", self.max_blob_growth),
             ));
         }
-        if self.container_confirmations == 0 {
-            return Err(ModelError::invalid(
-                file,
+        for (key, count) in [
+            (
                 "perception.container_confirmations",
-                "must be at least 1",
-            ));
+                self.container_confirmations,
+            ),
+            ("perception.row_confirmations", self.row_confirmations),
+        ] {
+            if count == 0 {
+                return Err(ModelError::invalid(file, key, "must be at least 1"));
+            }
         }
         if self.min_pixels == 0 {
             return Err(ModelError::invalid(
@@ -495,14 +511,27 @@ impl Perception {
     }
 
     /// This image's fix, `located`, where it may be taken: always, except for a container's
-    /// first fix, which needs `container_confirmations` images in a row with agreeing fixes.
+    /// first fix, which needs `container_confirmations` images in a row with agreeing fixes,
+    /// and the first fix of an object with known neighbours, which needs `row_confirmations`
+    /// (agreeing within `constellation_tolerance`).
     /// Called for every image; an image without a fix starts the count again.
     fn confirmed(
         &mut self,
         input: &PerceptionInput,
         located: Option<(usize, Vector3<f64>)>,
     ) -> Option<(usize, Vector3<f64>)> {
-        if input.colour != BlobColour::Blue || self.estimate.valid {
+        let (needed, agreement) = match input.colour {
+            BlobColour::Blue => (
+                self.config.container_confirmations,
+                CONTAINER_CONFIRMATION_DISTANCE,
+            ),
+            BlobColour::Red if !input.neighbours.is_empty() => (
+                self.config.row_confirmations,
+                self.config.constellation_tolerance,
+            ),
+            BlobColour::Red => return located,
+        };
+        if self.estimate.valid {
             return located;
         }
         let Some((_, position)) = located else {
@@ -510,10 +539,10 @@ impl Perception {
             return None;
         };
         let count = match self.unconfirmed {
-            Some((last, n)) if (position - last).norm() <= CONTAINER_CONFIRMATION_DISTANCE => n + 1,
+            Some((last, n)) if (position - last).norm() <= agreement => n + 1,
             _ => 1,
         };
-        let done = count >= self.config.container_confirmations;
+        let done = count >= needed;
         self.unconfirmed = (!done).then_some((position, count));
         located.filter(|_| done)
     }
@@ -562,10 +591,7 @@ impl Perception {
                 .map(|p| (fix - p).norm())
                 .reduce(f64::min)
         };
-        let max_range = match input.colour {
-            BlobColour::Red => self.config.max_range,
-            BlobColour::Blue => self.config.max_container_range,
-        };
+        let max_range = self.max_range(input.colour);
         // Nearest to the prior wins (blobs too far from it are other objects, e.g. cubes
         // already in a container); without a prior, the largest blob.
         let gate = match input.colour {
@@ -836,11 +862,44 @@ impl Perception {
         }
     }
 
-    /// Whether the world point `point` images inside the camera's view at `input`'s tool pose.
+    /// The longest range a fix of a `colour` object is taken from, m.
+    fn max_range(&self, colour: BlobColour) -> f64 {
+        match colour {
+            BlobColour::Red => self.config.max_range,
+            BlobColour::Blue => self.config.max_container_range,
+        }
+    }
+
+    /// Whether an object at the world point `point` would give a fix at `input`'s tool pose: it
+    /// images inside the camera's view by [`IN_VIEW_MARGIN`] (a cube at the view's edge is cut
+    /// below the blob size, or not imaged yet, while its neighbours further in are), and its
+    /// ray meets the object's plane within the range and at the angle [`Self::intersect`]
+    /// accepts. A point imaged at a grazing angle is out of view: its blob gives no fix, while
+    /// a neighbour nearer the camera does.
     fn in_view(&self, point: &Vector3<f64>, input: &PerceptionInput) -> bool {
         let world_from_camera = input.tool_pose * self.calibration.tool_from_camera;
         let local = world_from_camera.inverse_transform_point(&(*point).into());
-        self.calibration.model.project(&local.coords).is_some()
+        let ray = point - world_from_camera.translation.vector;
+        let range = ray.norm();
+        let (width, height) = (input.width as f64, input.height as f64);
+        let margin = IN_VIEW_MARGIN * width;
+        let imaged = |pixel: Vector2<f64>| {
+            (0.0..width).contains(&pixel.x)
+                && (0.0..height).contains(&pixel.y)
+                && self.calibration.model.unproject(&pixel).is_some()
+        };
+        let inside = self
+            .calibration
+            .model
+            .project(&local.coords)
+            .is_some_and(|pixel| {
+                [[-margin, 0.0], [margin, 0.0], [0.0, -margin], [0.0, margin]]
+                    .iter()
+                    .all(|[du, dv]| imaged(pixel + Vector2::new(*du, *dv)))
+            });
+        inside
+            && range <= self.max_range(input.colour)
+            && ray.z.abs() >= self.config.min_ray_angle.sin() * range
     }
 
     /// Intersects the calibrated ray of `pixel` with the plane `z = height` (world), if the ray
@@ -1095,6 +1154,60 @@ mod tests {
     }
 
     #[test]
+    fn a_row_cube_s_first_fix_takes_three_agreeing_images_in_a_row() {
+        // The far view of a row holds the two cubes beyond the target, which a shift of one
+        // spacing explains as the target and its neighbour; the next images hold all three.
+        let centres = [(100, 119), (160, 119), (220, 119)];
+        let fix_of = |c: (usize, usize)| fix_of_square(c, 3);
+        let row: Vec<_> = centres.iter().map(|&c| fix_of(c)).collect();
+        let config = PerceptionConfig {
+            max_prior_distance: 10.0,
+            constellation_tolerance: (row[1] - row[0]).norm() / 3.0,
+            ..PerceptionConfig::default()
+        };
+        let (far, whole) = (
+            image_with_squares(&centres[1..], 3),
+            image_with_squares(&centres, 3),
+        );
+        let neighbours = [row[1], row[2]];
+        fn at<'a>(
+            image: &'a [u8],
+            k: usize,
+            hint: Vector3<f64>,
+            neighbours: &'a [Vector3<f64>],
+        ) -> PerceptionInput<'a> {
+            let mut frame = input(image, k as f64 / 30.0);
+            frame.target_hint = Some(hint);
+            frame.neighbours = neighbours;
+            frame
+        }
+        let frame = |image, k| at(image, k, row[0], &neighbours);
+        let (far, whole) = (far.as_slice(), whole.as_slice());
+        // Taken at once, the far view's fix is the wrong cube.
+        let once = PerceptionConfig {
+            row_confirmations: 1,
+            ..config
+        };
+        let wrong = Perception::new(once, calibration()).step(&frame(far, 0));
+        assert!(
+            wrong.valid && (wrong.position - row[1]).norm() < 1e-9,
+            "{wrong:?}"
+        );
+        // With three: the far view and the first two whole ones give nothing, the third the
+        // target, and the estimate follows it from then on.
+        let mut p = Perception::new(config, calibration());
+        for (k, image) in [far, whole, whole].into_iter().enumerate() {
+            assert!(!p.step(&frame(image, k)).valid, "image {k}");
+        }
+        let estimate = p.step(&frame(whole, 3));
+        assert!(estimate.valid && (estimate.position - row[0]).norm() < 1e-9);
+        // Without neighbours a cube's first fix is taken at once.
+        let mut lone = frame(whole, 0);
+        lone.neighbours = &[];
+        assert!(Perception::new(config, calibration()).step(&lone).valid);
+    }
+
+    #[test]
     fn the_first_fix_is_the_blob_whose_neighbours_are_where_the_mission_knows_them() {
         // A row of three cubes; the target is the one at the row's end, and the mission's
         // positions are all off by 0.6 of the spacing toward the middle cube, which is so the
@@ -1108,6 +1221,7 @@ mod tests {
         let config = PerceptionConfig {
             max_prior_distance: 10.0,
             constellation_tolerance: step.norm() / 3.0,
+            row_confirmations: 1,
             ..PerceptionConfig::default()
         };
         let neighbours = [row[1] + error, row[2] + error];
@@ -1134,6 +1248,7 @@ mod tests {
         let config = PerceptionConfig {
             max_prior_distance: 10.0,
             constellation_tolerance: step.norm() / 3.0,
+            row_confirmations: 1,
             ..PerceptionConfig::default()
         };
         let neighbours = [a - step, a, b];
@@ -1154,6 +1269,7 @@ mod tests {
         let neighbours = [fix_of(neighbour)];
         let config = PerceptionConfig {
             max_prior_distance: 10.0,
+            row_confirmations: 1,
             ..PerceptionConfig::default()
         };
         let track = || {
