@@ -24,8 +24,8 @@
 //!   yaw. Keeping the tool's yaw on a pick, as the holistic reference does, closes the fingers
 //!   on a cube turned by up to 45° from them wherever the base comes in at a slant (a row's
 //!   cubes approached from the container), and they knock it off.
-//! - **Stand.** A pick or a press starts, when the base is far, with a drive to the target's
-//!   stand: `base_standoff + stand_margin` from it, in the direction whose footprint clears the
+//! - **Stand.** A pick or a press with other known objects near its target starts, when the
+//!   base is far, with a drive to the target's stand: `base_standoff + stand_margin` from it, in the direction whose footprint clears the
 //!   other known objects (a row's neighbours, emptied platforms), nearest the base's side. The
 //!   base turns on the spot to face it and drives there (the arm back at its ready pose), then
 //!   the holistic law takes over, square to a row. Alone, the holistic law drives the base at
@@ -486,7 +486,9 @@ impl ReactiveBaseline {
     /// The direction from `target` (odometry) of its stand, `base_standoff + stand_margin` out:
     /// of the directions every 10° whose footprint there, facing the target, keeps
     /// `platform_radius + footprint_margin` from every other known object (a row's neighbours,
-    /// platforms emptied earlier), the one nearest the base's side. `None` when none is clear.
+    /// platforms emptied earlier), the one nearest the base's side. `None` when none is clear,
+    /// and when no other object is within the stand's reach (its distance plus the footprint's
+    /// half-length): a lone target's holistic approach meets nothing.
     fn stand(
         &self,
         target: &Vector3<f64>,
@@ -503,7 +505,11 @@ impl ReactiveBaseline {
             .filter(|&(index, _)| index != self.task)
             .map(|(_, t)| world_to_odometry(offset, &t.position).xy() - target.xy())
             .filter(|p| p.norm() > self.config.stand_tolerance)
+            .filter(|p| p.norm() < distance + half_length + keep)
             .collect();
+        if others.is_empty() {
+            return None;
+        }
         let clear = |n: &Vector2<f64>| {
             others.iter().all(|p| {
                 let (along, beside) = along_and_beside(p, n);
@@ -1045,12 +1051,18 @@ mod tests {
             let n = baseline.stand(&cube, &base, &[0.0; 3]).expect("a stand");
             assert!(n.x * x >= 30f64.to_radians().cos() - 1e-9, "{base:?}: {n}");
         }
-        // A lone cube's stand is on the base's side, to the nearest 10°.
+        // A lone cube has none: its holistic approach meets nothing.
         let lone = exp1_baseline();
-        let n = lone
-            .stand(&Vector3::new(2.0, 0.0, 0.45), &at(2.0, 3.0), &[0.0; 3])
-            .expect("a stand");
-        assert!((n - Vector2::new(0.0, 1.0)).norm() < 1e-9, "{n}");
+        let cube = Vector3::new(2.0, 0.0, 0.45);
+        assert_eq!(lone.stand(&cube, &at(2.0, 3.0), &[0.0; 3]), None);
+        // With a platform beside it, the stand is on the base's side, to the nearest 10°.
+        let mut beside = exp1_baseline();
+        beside.tasks[1].position = Vector3::new(2.5, 0.0, 0.35);
+        let n = beside.stand(&cube, &at(2.0, 3.0), &[0.0; 3]);
+        assert!(
+            n.is_some_and(|n| (n - Vector2::new(0.0, 1.0)).norm() < 1e-9),
+            "{n:?}"
+        );
     }
 
     #[test]

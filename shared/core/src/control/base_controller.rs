@@ -758,6 +758,9 @@ pub struct BaseController {
     rearm: bool,
     /// While every route is blocked: the direction the base turns on the spot (+1 left).
     blocked_turn: Option<f64>,
+    /// While every route is blocked: how often the command check has refused the turn and
+    /// reversed it.
+    blocked_reversals: u32,
     /// How much farther a wedged base backs out, m ([`BACK_OUT_DISTANCE`]).
     backing_out: f64,
     /// Times the pass plans were scored (the planner's costly search).
@@ -787,6 +790,7 @@ impl BaseController {
             lingered: 0.0,
             rearm: false,
             blocked_turn: None,
+            blocked_reversals: 0,
             backing_out: 0.0,
             plan_searches: std::cell::Cell::new(0),
             drive: DriveRatio::default(),
@@ -1061,6 +1065,7 @@ impl BaseController {
             (0.0, wanted)
         } else {
             self.blocked_turn = None;
+            self.blocked_reversals = 0;
             (speed, pursue(b, point, speed))
         };
         let backing = (self.backing_out > 0.0)
@@ -1077,6 +1082,15 @@ impl BaseController {
             // cycle to cycle, and the base stood wedged beside Exp 2's row (seed 28, 770 s).
             if blocked && guarded * wanted_omega <= 0.0 {
                 self.blocked_turn = self.blocked_turn.map(|turn| -turn);
+                self.blocked_reversals += 1;
+            }
+            // Refused both ways, the turn swings to and fro inside the wedge the check allows
+            // (a square footprint facing a container close ahead: generated Fetch layouts
+            // stood so until their timeout). The base backs out, and turns again from there.
+            if self.blocked_reversals >= 2 {
+                self.blocked_reversals = 0;
+                self.blocked_turn = None;
+                self.backing_out = BACK_OUT_DISTANCE;
             }
             (speed, guarded)
         };
@@ -2290,6 +2304,49 @@ mod tests {
         assert!(
             (closest - 0.6).abs() < 0.1,
             "passed {closest:.3} m from the target"
+        );
+    }
+
+    #[test]
+    fn a_square_base_facing_a_container_close_ahead_backs_out_instead_of_swinging_for_good() {
+        // Generated Fetch layout 18 after its first drop: the container 0.6 m ahead and to the
+        // right, the next pick 2 m behind. A turn on the spot out of the way is refused beyond
+        // a wedge either side (the square footprint's corners come nearer the container); the
+        // base swung to and fro in that wedge until the trial's timeout.
+        let fetch_like = BaseModel {
+            arm_base: Vector2::new(0.0, 0.0),
+            half_extents: Vector2::new(0.28, 0.28),
+            ..frankie_like()
+        };
+        let container = Vector3::new(-2.141, -4.088, 0.35);
+        let pick = Vector3::new(-4.570, -4.413, 0.45);
+        let next = Vector3::new(-5.535, -6.503, 0.35);
+        let layout = [Vector3::new(-2.898, -2.093, 0.45), container, pick, next];
+        let mut controller =
+            BaseController::new(BaseControllerConfig::default(), fetch_like).with_layout(&layout);
+        let start = BasePose::new(-2.597, -3.688, -0.7);
+        let mut base = start;
+        let mut nearest_container = f64::INFINITY;
+        for _ in 0..(20.0 / DT) as usize {
+            let out = controller
+                .step(&BaseControllerInput {
+                    task_index: 2,
+                    base,
+                    target: TargetEstimate::fixed(pick),
+                    next_target: next,
+                    after_next: None,
+                    dt: DT,
+                })
+                .unwrap();
+            integrate(&mut base, out.command, DT);
+            nearest_container =
+                nearest_container.min((xy(&container) - Vector2::new(base.x, base.y)).norm());
+        }
+        let moved = (Vector2::new(base.x - start.x, base.y - start.y)).norm();
+        assert!(moved > 1.0, "the base stood at {base:?}");
+        assert!(
+            nearest_container > 0.5,
+            "came {nearest_container:.3} m from the container"
         );
     }
 
