@@ -695,16 +695,13 @@ impl ReactiveBaseline {
                 + n * (self.config.base_standoff + self.config.stand_margin);
             match self.drive_to_stand(input, &stand) {
                 Some((base, arm_qd)) => {
-                    return ReactiveOutput {
+                    return self.output(
                         base,
                         arm_qd,
-                        gripper: self.gripper,
-                        stage: self.stage,
-                        task_index: self.task,
-                        qp_status: ResolveStatus::Solved,
-                        position_error: stage_error,
+                        ResolveStatus::Solved,
+                        stage_error,
                         tool_to_target,
-                    };
+                    );
                 }
                 None => self.stand = None,
             }
@@ -794,28 +791,37 @@ impl ReactiveBaseline {
         if task.kind == TaskKind::PressButton {
             self.gripper = GripperCommand::Close;
         }
+        self.output(base, arm_qd, out.status, out.position_error, tool_to_target)
+    }
+
+    /// The command once every task is done: stand still, gripper as it was.
+    fn idle(&self, tool_to_target: f64) -> ReactiveOutput {
+        self.output(
+            BaseVelocity::default(),
+            vec![0.0; self.robot.arm_dof()],
+            ResolveStatus::Solved,
+            0.0,
+            tool_to_target,
+        )
+    }
+
+    /// This cycle's output: the commands, with the gripper, stage and task as they stand.
+    fn output(
+        &self,
+        base: BaseVelocity,
+        arm_qd: Vec<f64>,
+        qp_status: ResolveStatus,
+        position_error: f64,
+        tool_to_target: f64,
+    ) -> ReactiveOutput {
         ReactiveOutput {
             base,
             arm_qd,
             gripper: self.gripper,
             stage: self.stage,
             task_index: self.task,
-            qp_status: out.status,
-            position_error: out.position_error,
-            tool_to_target,
-        }
-    }
-
-    /// The command once every task is done: stand still, gripper as it was.
-    fn idle(&self, tool_to_target: f64) -> ReactiveOutput {
-        ReactiveOutput {
-            base: BaseVelocity::default(),
-            arm_qd: vec![0.0; self.robot.arm_dof()],
-            gripper: self.gripper,
-            stage: ReactiveStage::Complete,
-            task_index: self.task,
-            qp_status: ResolveStatus::Solved,
-            position_error: 0.0,
+            qp_status,
+            position_error,
             tool_to_target,
         }
     }
