@@ -25,10 +25,11 @@
 //!   on a cube turned by up to 45° from them wherever the base comes in at a slant (a row's
 //!   cubes approached from the container), and they knock it off.
 //! - **Stand.** A pick or a press with other known objects near its target starts, when the
-//!   base is far, with a drive to the target's stand: `base_standoff + stand_margin` from it, in the direction whose footprint clears the
-//!   other known objects (a row's neighbours, emptied platforms), nearest the base's side. The
-//!   base turns on the spot to face it and drives there (the arm back at its ready pose), then
-//!   the holistic law takes over, square to a row. Alone, the holistic law drives the base at
+//!   base is far, with a drive to the target's stand: `base_standoff + stand_margin` from it,
+//!   in the direction whose footprint clears the other known objects (a row's neighbours,
+//!   emptied platforms), nearest the base's side. The base turns on the spot to face it and
+//!   drives there (the arm back at its ready pose), then the holistic law takes over, square
+//!   to a row. Alone, the holistic law drives the base at
 //!   the target along the line it comes from: after a place, reversing from a container, that
 //!   line met a row of cubes at its end and at a slant, past platforms already emptied, and the
 //!   base was held there for good (10 of 20 Exp 2 runs).
@@ -61,8 +62,7 @@ use crate::mission::{MissionTask, TaskKind, give_up_task, next_open_task};
 use crate::reacher::{symmetric_yaw, tool_yaw, top_down};
 use crate::resolver::ResolveStatus;
 use crate::robot::{BASE_JOINTS, Robot};
-use crate::types::wrap_angle;
-use crate::types::{BaseVelocity, GripperCommand, TargetEstimate};
+use crate::types::{BaseVelocity, GripperCommand, TargetEstimate, wrap_angle};
 
 /// Tunables of the reactive baseline's stages.
 #[derive(Debug, Clone, Deserialize)]
@@ -226,6 +226,17 @@ pub enum ReactiveStage {
     Complete,
 }
 
+/// The current approach's drive to its target's stand ([`ReactiveBaseline::stand`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum StandDrive {
+    /// Not decided yet: the approach's first cycle decides.
+    Undecided,
+    /// The holistic law alone (no stand, the base near it, or there).
+    Holistic,
+    /// Driving to the stand in this direction from the target.
+    To(Vector2<f64>),
+}
+
 /// One cycle's input.
 #[derive(Debug, Clone, Copy)]
 pub struct ReactiveInput<'a> {
@@ -280,10 +291,8 @@ pub struct ReactiveBaseline {
     failed: Vec<bool>,
     /// The platform a squaring turn is freeing the base from, and the turn rate.
     squaring: Option<(usize, f64)>,
-    /// Whether the current approach has decided on a drive to its stand.
-    stand_decided: bool,
-    /// The direction of the stand from the target while the base drives to it.
-    stand: Option<Vector2<f64>>,
+    /// The current approach's drive to its stand.
+    stand: StandDrive,
     /// When the stage's error last reached a new best by `progress_distance`, and that best.
     progress: Option<(f64, f64)>,
     gripper: GripperCommand,
@@ -291,6 +300,9 @@ pub struct ReactiveBaseline {
     base_deceleration: f64,
     /// The base footprint's half-length and half-width, m.
     half_footprint: [f64; 2],
+    /// Fastest each arm joint returns to its ready pose, rad/s or m/s
+    /// ([`READY_SPEED_SHARE`] of its limit).
+    ready_speed: Vec<f64>,
 }
 
 impl ReactiveBaseline {
@@ -302,7 +314,14 @@ impl ReactiveBaseline {
             ReactiveStage::Approach
         };
         let [length, width] = robot.config.footprint;
+        let ready_speed = robot
+            .limits()
+            .iter()
+            .skip(BASE_JOINTS)
+            .map(|limits| READY_SPEED_SHARE * limits.velocity)
+            .collect();
         Self {
+            ready_speed,
             failed: vec![false; tasks.len()],
             half_footprint: [0.5 * length, 0.5 * width],
             base_deceleration: robot.limits()[1].acceleration,
@@ -316,8 +335,7 @@ impl ReactiveBaseline {
             anchor: None,
             progress: None,
             squaring: None,
-            stand_decided: false,
-            stand: None,
+            stand: StandDrive::Undecided,
             gripper: GripperCommand::Open,
         }
     }
@@ -347,8 +365,7 @@ impl ReactiveBaseline {
         self.stage = stage;
         self.stage_start = t;
         self.progress = None;
-        self.stand_decided = false;
-        self.stand = None;
+        self.stand = StandDrive::Undecided;
     }
 
     /// Records the stage's error at time `t` and tells whether the stage has stalled: its
@@ -496,7 +513,7 @@ impl ReactiveBaseline {
         offset: &[f64; 3],
     ) -> Option<Vector2<f64>> {
         let [half_length, half_width] = self.half_footprint;
-        let distance = self.config.base_standoff + self.config.stand_margin;
+        let distance = self.stand_distance();
         let keep = self.config.platform_radius + self.config.footprint_margin;
         let others: Vec<Vector2<f64>> = self
             .tasks
@@ -528,6 +545,11 @@ impl ReactiveBaseline {
             })
             .filter(clear)
             .max_by(|a, b| a.dot(&side).total_cmp(&b.dot(&side)))
+    }
+
+    /// How far from its target a stand is, m: `base_standoff + stand_margin`.
+    fn stand_distance(&self) -> f64 {
+        self.config.base_standoff + self.config.stand_margin
     }
 
     /// The drive to the stand `stand` (odometry), and the arm's return to its ready pose:
@@ -570,11 +592,8 @@ impl ReactiveBaseline {
             .ready_pose
             .iter()
             .zip(input.arm_q)
-            .zip(self.robot.limits().iter().skip(BASE_JOINTS))
-            .map(|((ready, q), limits)| {
-                let top = READY_SPEED_SHARE * limits.velocity;
-                (self.config.ready_gain * (ready - q)).clamp(-top, top)
-            })
+            .zip(&self.ready_speed)
+            .map(|((ready, q), top)| (self.config.ready_gain * (ready - q)).clamp(-top, *top))
             .collect();
         Some((velocity, arm_qd))
     }
@@ -678,22 +697,21 @@ impl ReactiveBaseline {
             self.give_up(input.t);
             return self.step(input);
         }
-        if self.stage == ReactiveStage::Approach && !self.stand_decided {
-            self.stand_decided = true;
+        let stand_distance = self.stand_distance();
+        let stand_at = |n: &Vector2<f64>| input.target.position.xy() + n * stand_distance;
+        if self.stage == ReactiveStage::Approach && self.stand == StandDrive::Undecided {
+            let far = |n: &Vector2<f64>| {
+                (stand_at(n) - Vector2::new(input.base.x, input.base.y)).norm()
+                    > self.config.stand_travel_distance
+            };
             self.stand = (task.kind != TaskKind::Place)
                 .then(|| self.stand(&input.target.position, &input.base, &input.odometry_offset))
                 .flatten()
-                .filter(|n| {
-                    let stand = input.target.position.xy()
-                        + n * (self.config.base_standoff + self.config.stand_margin);
-                    (stand - Vector2::new(input.base.x, input.base.y)).norm()
-                        > self.config.stand_travel_distance
-                });
+                .filter(far)
+                .map_or(StandDrive::Holistic, StandDrive::To);
         }
-        if let Some(n) = self.stand {
-            let stand = input.target.position.xy()
-                + n * (self.config.base_standoff + self.config.stand_margin);
-            match self.drive_to_stand(input, &stand) {
+        if let StandDrive::To(n) = self.stand {
+            match self.drive_to_stand(input, &stand_at(&n)) {
                 Some((base, arm_qd)) => {
                     return self.output(
                         base,
@@ -703,7 +721,7 @@ impl ReactiveBaseline {
                         tool_to_target,
                     );
                 }
-                None => self.stand = None,
+                None => self.stand = StandDrive::Holistic,
             }
         }
         let current_yaw = tool_yaw(&tool.rotation);
@@ -1111,7 +1129,7 @@ mod tests {
         };
         let out = step_at(&mut baseline, stand, cube);
         assert!(out.base.v < 0.1, "{out:?}");
-        assert!(baseline.stand.is_none());
+        assert_eq!(baseline.stand, StandDrive::Holistic);
     }
 
     #[test]

@@ -1949,6 +1949,29 @@ mod tests {
         base.y += command.v * dt * base.yaw.sin();
     }
 
+    /// One step of `controller` on task `task_index`, toward the standing `target` and then
+    /// `next`, with `base` moved by the command.
+    fn step_toward(
+        controller: &mut BaseController,
+        base: &mut BasePose,
+        task_index: usize,
+        target: Vector3<f64>,
+        next: Vector3<f64>,
+    ) -> BaseControllerOutput {
+        let out = controller
+            .step(&BaseControllerInput {
+                task_index,
+                base: *base,
+                target: TargetEstimate::fixed(target),
+                next_target: next,
+                after_next: None,
+                dt: DT,
+            })
+            .unwrap();
+        integrate(base, out.command, DT);
+        out
+    }
+
     struct Pass {
         /// Smallest base–target distance over the run, m.
         min_distance: f64,
@@ -2274,16 +2297,7 @@ mod tests {
         let mut drove_on = false;
         let mut closest = f64::INFINITY;
         for step in 0..(16.0 / DT) as usize {
-            let out = controller
-                .step(&BaseControllerInput {
-                    task_index: 1,
-                    base,
-                    target: TargetEstimate::fixed(target),
-                    next_target: target,
-                    after_next: None,
-                    dt: DT,
-                })
-                .unwrap();
+            let out = step_toward(&mut controller, &mut base, 1, target, target);
             if step == 0 {
                 assert!(out.command.v < 0.0, "{:?}", out.command);
             }
@@ -2293,7 +2307,6 @@ mod tests {
             } else if out.command.v > 0.0 {
                 drove_on = true;
             }
-            integrate(&mut base, out.command, DT);
             closest = closest.min((xy(&target) - Vector2::new(base.x, base.y)).norm());
         }
         assert!(
@@ -2328,17 +2341,7 @@ mod tests {
         let mut base = start;
         let mut nearest_container = f64::INFINITY;
         for _ in 0..(20.0 / DT) as usize {
-            let out = controller
-                .step(&BaseControllerInput {
-                    task_index: 2,
-                    base,
-                    target: TargetEstimate::fixed(pick),
-                    next_target: next,
-                    after_next: None,
-                    dt: DT,
-                })
-                .unwrap();
-            integrate(&mut base, out.command, DT);
+            step_toward(&mut controller, &mut base, 2, pick, next);
             nearest_container =
                 nearest_container.min((xy(&container) - Vector2::new(base.x, base.y)).norm());
         }
