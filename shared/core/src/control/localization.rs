@@ -122,7 +122,8 @@ impl OdometryCorrection {
     /// A correction that starts at the identity (odometry starts on the world). Each new fix of
     /// a landmark takes `fix_weight` of its task's weight, the older ones sharing the rest (0
     /// turns the correction off); the known layout is trusted once the base has turned
-    /// [`MIN_TURN_TO_TRUST_LAYOUT`] and fixes of two landmarks at least `baseline` (m) apart are in.
+    /// [`MIN_TURN_TO_TRUST_LAYOUT`] and fixes of two landmarks at least `baseline` (m) apart
+    /// are in.
     pub fn new(fix_weight: f64, baseline: f64) -> Self {
         Self {
             fix_weight,
@@ -438,9 +439,9 @@ impl Localizer {
     /// to the correction when the task's object is a landmark at this moment: every new fix of
     /// a container or a button; a cube's once, on the cycle its grasp begins (`grasp_begins`),
     /// when it is seen standing still: slower than `landmark_max_speed` now, and on average
-    /// since its first fix, at least [`MIN_LANDMARK_TRACK`] before. Only fixes taken with the tool within
-    /// `landmark_max_range` of the task's aim (`tool_range`, m) count: from farther, a
-    /// container is seen obliquely and its walls bias the fix. A fix farther than
+    /// since its first fix, at least [`MIN_LANDMARK_TRACK`] before. Only fixes taken with the
+    /// tool within `landmark_max_range` of the task's aim (`tool_range`, m) count: from
+    /// farther, a container is seen obliquely and its walls bias the fix. A fix farther than
     /// `landmark_max_residual` from where the correction puts the known position is another
     /// object, and is not taken.
     pub fn locate(

@@ -722,18 +722,10 @@ impl Perception {
         // An edge pixel is the silhouette's only where the pixel two steps further out is still
         // imaged (inside the image and the lens' image circle): elsewhere the blob is cut by the
         // view's edge, not by the box's.
-        let model = &self.calibration.model;
-        let imaged = |u: i64, v: i64| {
-            u >= 0
-                && v >= 0
-                && u < width as i64
-                && v < height as i64
-                && model.unproject(&Vector2::new(u as f64, v as f64)).is_some()
-        };
         let mut edges = Vec::new();
         let mut cut = false;
         let mut edge = |pixel: Vector2<f64>, probe: (i64, i64)| {
-            if imaged(probe.0, probe.1) {
+            if self.imaged(&Vector2::new(probe.0 as f64, probe.1 as f64), input) {
                 edges.push(pixel);
             } else {
                 cut = true;
@@ -862,6 +854,13 @@ impl Perception {
         }
     }
 
+    /// Whether `pixel` is imaged: inside `input`'s image and the lens' image circle.
+    fn imaged(&self, pixel: &Vector2<f64>, input: &PerceptionInput) -> bool {
+        (0.0..f64::from(input.width)).contains(&pixel.x)
+            && (0.0..f64::from(input.height)).contains(&pixel.y)
+            && self.calibration.model.unproject(pixel).is_some()
+    }
+
     /// The longest range a fix of a `colour` object is taken from, m.
     fn max_range(&self, colour: BlobColour) -> f64 {
         match colour {
@@ -881,13 +880,7 @@ impl Perception {
         let local = world_from_camera.inverse_transform_point(&(*point).into());
         let ray = point - world_from_camera.translation.vector;
         let range = ray.norm();
-        let (width, height) = (input.width as f64, input.height as f64);
-        let margin = IN_VIEW_MARGIN * width;
-        let imaged = |pixel: Vector2<f64>| {
-            (0.0..width).contains(&pixel.x)
-                && (0.0..height).contains(&pixel.y)
-                && self.calibration.model.unproject(&pixel).is_some()
-        };
+        let margin = IN_VIEW_MARGIN * f64::from(input.width);
         let inside = self
             .calibration
             .model
@@ -895,7 +888,7 @@ impl Perception {
             .is_some_and(|pixel| {
                 [[-margin, 0.0], [margin, 0.0], [0.0, -margin], [0.0, margin]]
                     .iter()
-                    .all(|[du, dv]| imaged(pixel + Vector2::new(*du, *dv)))
+                    .all(|[du, dv]| self.imaged(&(pixel + Vector2::new(*du, *dv)), input))
             });
         inside
             && range <= self.max_range(input.colour)
